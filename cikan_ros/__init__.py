@@ -1,0 +1,7 @@
+"""cikan_ros: learned Time Shift Governors for spacecraft rendezvous (library, runs without ROS).
+
+Internal units are km, s, km/s, km/s^2 in the Earth-centred inertial (ECI) frame; ROS messages use
+SI units and are converted only in ``cikan_ros.ros``.
+"""
+
+__version__ = "0.1.0"

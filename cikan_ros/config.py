@@ -1,0 +1,288 @@
+"""Parameters of the mission, read from ``config/*.yaml`` (ROS 2 params format).
+
+The same file feeds the ROS nodes (as declared parameters named ``group.key``) and the offline
+code, so both run on one set of values. Every value is validated on load; a bad one raises
+:class:`ConfigError` naming it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any, Mapping
+
+import yaml
+
+from .errors import ConfigError
+
+#: The default parameter file shipped with the package (``config/cikan.yaml`` in the repository).
+DEFAULT_CONFIG_PATH = Path(__file__).resolve().parent.parent / "config" / "cikan.yaml"
+
+
+def _check(cond: bool, name: str, value: Any, what: str) -> None:
+    if not cond:
+        raise ConfigError(f"invalid configuration value {name} = {value!r}: {what}")
+
+
+def _positive(name: str, value: float) -> None:
+    _check(isinstance(value, (int, float)) and math.isfinite(value) and value > 0, name, value,
+           "must be a finite number > 0")
+
+
+@dataclass(frozen=True)
+class OrbitConfig:
+    """Chief orbit: classical elements (km, deg) and Earth's gravitational parameter."""
+
+    mu_km3_s2: float = 398600.4418
+    a_km: float = 26646.6808
+    e: float = 0.74
+    i_deg: float = 62.8
+    raan_deg: float = 0.0
+    argp_deg: float = 280.0
+    nu0_deg: float = 0.0
+    epoch_utc: str = "2025-01-01T00:00:00Z"
+
+    def __post_init__(self) -> None:
+        _positive("orbit.mu_km3_s2", self.mu_km3_s2)
+        _positive("orbit.a_km", self.a_km)
+        _check(0.0 <= self.e < 1.0, "orbit.e", self.e, "the chief orbit must be elliptic (0 <= e < 1)")
+        _check(self.a_km * (1.0 - self.e) > 6378.137, "orbit.a_km", self.a_km,
+               f"periapsis radius a(1-e) = {self.a_km * (1 - self.e):.1f} km is inside the Earth")
+        for name in ("i_deg", "raan_deg", "argp_deg", "nu0_deg"):
+            v = getattr(self, name)
+            _check(math.isfinite(v), f"orbit.{name}", v, "must be finite")
+        _check(0.0 <= self.i_deg <= 180.0, "orbit.i_deg", self.i_deg, "must lie in [0, 180]")
+        from datetime import datetime
+
+        try:
+            datetime.fromisoformat(self.epoch_utc.replace("Z", "+00:00"))
+        except (ValueError, AttributeError):
+            _check(False, "orbit.epoch_utc", self.epoch_utc, "must be an ISO 8601 UTC time")
+
+    @property
+    def epoch_unix_s(self) -> float:
+        """The mission epoch as seconds since 1970-01-01 UTC."""
+        from datetime import datetime, timezone
+
+        dt = datetime.fromisoformat(self.epoch_utc.replace("Z", "+00:00"))
+        if dt.tzinfo is None:
+            dt = dt.replace(tzinfo=timezone.utc)
+        return dt.timestamp()
+
+
+@dataclass(frozen=True)
+class ControlConfig:
+    """Frozen-time Riccati (FTRE) controller: ZOH period, LQ weights, gain grid, thrust limit."""
+
+    period_s: float = 10.0
+    q_diag: tuple[float, ...] = (10.0, 10.0, 10.0, 1.0, 1.0, 1.0)
+    r_diag: tuple[float, ...] = (1.0, 1.0, 1.0)
+    grid_deg: float = 0.5
+    u_max_kmps2: float = 5e-4
+
+    def __post_init__(self) -> None:
+        _positive("control.period_s", self.period_s)
+        object.__setattr__(self, "q_diag", tuple(float(q) for q in self.q_diag))
+        object.__setattr__(self, "r_diag", tuple(float(r) for r in self.r_diag))
+        _check(len(self.q_diag) == 6 and all(math.isfinite(q) and q >= 0 for q in self.q_diag)
+               and any(q > 0 for q in self.q_diag), "control.q_diag", self.q_diag,
+               "must be 6 finite weights >= 0, not all zero")
+        _check(len(self.r_diag) == 3 and all(math.isfinite(r) and r > 0 for r in self.r_diag),
+               "control.r_diag", self.r_diag, "must be 3 finite weights > 0")
+        _positive("control.grid_deg", self.grid_deg)
+        n = 360.0 / self.grid_deg
+        _check(abs(n - round(n)) < 1e-9 and round(n) >= 4, "control.grid_deg", self.grid_deg,
+               "must divide 360 degrees into at least 4 cells")
+        _positive("control.u_max_kmps2", self.u_max_kmps2)
+
+
+@dataclass(frozen=True)
+class ConstraintConfig:
+    """Line-of-sight cone (h1), thrust (h2) and approach-velocity (h3) constraint parameters."""
+
+    los_half_angle_deg: float = 20.0
+    los_apex_radius_km: float = 1e-3
+    gamma1_km: float = 5.0
+    gamma2_per_s: float = 20.0
+    gamma3_kmps: float = 1e-3
+    plant_h1_tolerance: float = 1e-9
+    plant_h3_tolerance_kmps: float = 1e-9
+
+    def __post_init__(self) -> None:
+        _check(0.0 < self.los_half_angle_deg < 90.0, "constraints.los_half_angle_deg",
+               self.los_half_angle_deg, "must lie in (0, 90) degrees")
+        _check(math.isfinite(self.los_apex_radius_km) and self.los_apex_radius_km >= 0,
+               "constraints.los_apex_radius_km", self.los_apex_radius_km, "must be >= 0")
+        _positive("constraints.gamma1_km", self.gamma1_km)
+        for name in ("gamma2_per_s", "gamma3_kmps", "plant_h1_tolerance", "plant_h3_tolerance_kmps"):
+            v = getattr(self, name)
+            _check(math.isfinite(v) and v >= 0, f"constraints.{name}", v, "must be finite and >= 0")
+
+
+@dataclass(frozen=True)
+class TSGConfig:
+    """Time Shift Governor: prediction (Verify), search and update schedule."""
+
+    sample_period_s: float = 10.0
+    horizon_s: float = 0.0
+    rk4_substeps: int = 2
+    terminal_pos_km: float = 1e-3
+    terminal_vel_kmps: float = 1e-4
+    tolerance_s: float = 1e-5
+    initial_window_s: float = 600.0
+    initial_grid_s: float = 1.0
+    update_period_s: float = 60.0
+    zero_snap_s: float = 1e-2
+
+    def __post_init__(self) -> None:
+        for name in ("sample_period_s", "terminal_pos_km", "terminal_vel_kmps", "tolerance_s",
+                     "initial_window_s", "initial_grid_s", "update_period_s"):
+            _positive(f"tsg.{name}", getattr(self, name))
+        _check(math.isfinite(self.horizon_s) and self.horizon_s >= 0, "tsg.horizon_s",
+               self.horizon_s, "must be >= 0 (0 means one chief orbital period)")
+        _check(isinstance(self.rk4_substeps, int) and 1 <= self.rk4_substeps <= 1000,
+               "tsg.rk4_substeps", self.rk4_substeps, "must be an integer in [1, 1000]")
+        _check(self.initial_grid_s <= self.initial_window_s, "tsg.initial_grid_s",
+               self.initial_grid_s, "must not exceed tsg.initial_window_s")
+        _check(math.isfinite(self.zero_snap_s) and self.zero_snap_s >= 0, "tsg.zero_snap_s",
+               self.zero_snap_s, "must be >= 0")
+
+
+@dataclass(frozen=True)
+class MissionConfig:
+    """Closed-loop mission: duration, nominal start, Monte Carlo spread, plant, success test."""
+
+    duration_s: float = 14400.0
+    nominal_distance_km: float = 100.0
+    mc_sigma_km: float = 10.0
+    plant_substeps: int = 10
+    dock_distance_km: float = 1e-3
+    dock_speed_kmps: float = 1e-6
+
+    def __post_init__(self) -> None:
+        for name in ("duration_s", "nominal_distance_km", "dock_distance_km", "dock_speed_kmps"):
+            _positive(f"mission.{name}", getattr(self, name))
+        _check(math.isfinite(self.mc_sigma_km) and self.mc_sigma_km >= 0, "mission.mc_sigma_km",
+               self.mc_sigma_km, "must be >= 0")
+        _check(isinstance(self.plant_substeps, int) and 1 <= self.plant_substeps <= 10000,
+               "mission.plant_substeps", self.plant_substeps, "must be an integer in [1, 10000]")
+
+
+@dataclass(frozen=True)
+class Config:
+    """All parameters of one mission; cross-group consistency is checked here."""
+
+    orbit: OrbitConfig = field(default_factory=OrbitConfig)
+    control: ControlConfig = field(default_factory=ControlConfig)
+    constraints: ConstraintConfig = field(default_factory=ConstraintConfig)
+    tsg: TSGConfig = field(default_factory=TSGConfig)
+    mission: MissionConfig = field(default_factory=MissionConfig)
+
+    def __post_init__(self) -> None:
+        ratio = self.tsg.update_period_s / self.control.period_s
+        _check(abs(ratio - round(ratio)) < 1e-9 and round(ratio) >= 1, "tsg.update_period_s",
+               self.tsg.update_period_s, "must be a whole multiple of control.period_s")
+        _check(abs(self.tsg.sample_period_s - self.control.period_s) < 1e-12,
+               "tsg.sample_period_s", self.tsg.sample_period_s,
+               "must equal control.period_s (the prediction uses the controller's ZOH)")
+        ratio = self.mission.duration_s / self.control.period_s
+        _check(abs(ratio - round(ratio)) < 1e-9, "mission.duration_s", self.mission.duration_s,
+               "must be a whole multiple of control.period_s")
+
+    # -- conversions ----------------------------------------------------------------------------
+    def flat(self) -> dict[str, Any]:
+        """Parameters as ``{"group.key": value}`` (the ROS parameter names)."""
+        out: dict[str, Any] = {}
+        for f in fields(self):
+            group = getattr(self, f.name)
+            for g in fields(group):
+                v = getattr(group, g.name)
+                out[f"{f.name}.{g.name}"] = list(v) if isinstance(v, tuple) else v
+        return out
+
+    def replace(self, **dotted: Any) -> "Config":
+        """A copy with values changed by dotted name, e.g. ``replace(**{"tsg.tolerance_s": 1e-4})``."""
+        return config_from_flat({**self.flat(), **dotted})
+
+
+_GROUPS = {f.name: f.type for f in fields(Config)}
+_GROUP_CLASSES = {
+    "orbit": OrbitConfig, "control": ControlConfig, "constraints": ConstraintConfig,
+    "tsg": TSGConfig, "mission": MissionConfig,
+}
+
+
+def _coerce(name: str, default: Any, value: Any) -> Any:
+    """Convert a YAML/ROS value to the type of the field's default, or raise ConfigError."""
+    if isinstance(default, bool):
+        _check(isinstance(value, bool), name, value, "must be true or false")
+        return value
+    if isinstance(default, int):
+        _check(isinstance(value, int) and not isinstance(value, bool), name, value, "must be an integer")
+        return value
+    if isinstance(default, float):
+        _check(isinstance(value, (int, float)) and not isinstance(value, bool), name, value, "must be a number")
+        return float(value)
+    if isinstance(default, tuple):
+        _check(isinstance(value, (list, tuple)) and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                                        for v in value), name, value, "must be a list of numbers")
+        return tuple(float(v) for v in value)
+    if isinstance(default, str):
+        _check(isinstance(value, str), name, value, "must be a string")
+        return value
+    raise AssertionError(name)  # pragma: no cover - every field has one of the types above
+
+
+def config_from_flat(flat: Mapping[str, Any]) -> Config:
+    """Build a validated :class:`Config` from ``{"group.key": value}``; unknown names are errors."""
+    groups: dict[str, dict[str, Any]] = {g: {} for g in _GROUP_CLASSES}
+    for name, value in flat.items():
+        group, _, key = name.partition(".")
+        cls = _GROUP_CLASSES.get(group)
+        known = {f.name: f for f in fields(cls)} if cls else {}
+        if key not in known:
+            raise ConfigError(f"unknown configuration parameter {name!r}")
+        default = known[key].default if known[key].default is not dataclasses.MISSING \
+            else known[key].default_factory()  # type: ignore[misc]
+        groups[group][key] = _coerce(name, default, value)
+    try:
+        return Config(**{g: _GROUP_CLASSES[g](**kv) for g, kv in groups.items()})
+    except TypeError as exc:  # pragma: no cover - guarded by the name check above
+        raise ConfigError(str(exc)) from None
+
+
+def _flatten(prefix: str, node: Mapping[str, Any], out: dict[str, Any]) -> None:
+    for k, v in node.items():
+        name = f"{prefix}.{k}" if prefix else str(k)
+        if isinstance(v, Mapping):
+            _flatten(name, v, out)
+        else:
+            out[name] = v
+
+
+def load_config(path: str | Path | None = None, **overrides: Any) -> Config:
+    """Read a ROS 2 params YAML file (the ``/**`` section) and apply dotted-name overrides.
+
+    ``path=None`` reads the shipped default file; a missing default file falls back to the
+    built-in defaults, which equal it.
+    """
+    flat: dict[str, Any] = {}
+    p = Path(path) if path is not None else DEFAULT_CONFIG_PATH
+    if path is not None or p.exists():
+        try:
+            doc = yaml.safe_load(p.read_text())
+        except FileNotFoundError:
+            raise ConfigError(f"configuration file not found: {p}") from None
+        except yaml.YAMLError as exc:
+            raise ConfigError(f"configuration file {p} is not valid YAML: {exc}") from None
+        if not isinstance(doc, Mapping):
+            raise ConfigError(f"configuration file {p} must hold a mapping")
+        section = doc.get("/**", doc)
+        params = section.get("ros__parameters") if isinstance(section, Mapping) else None
+        if not isinstance(params, Mapping):
+            raise ConfigError(f"configuration file {p} has no '/**: ros__parameters:' section")
+        _flatten("", params, flat)
+    flat.update(overrides)
+    return config_from_flat(flat)

@@ -1,0 +1,123 @@
+"""Nominal controller: frozen-time discrete Riccati (FTRE) gains on a true-anomaly grid, saturation.
+
+u = sat(-K(nu_v) (x_d - x_v)) with K from the DARE of the ZOH-discretised linearisation at the
+virtual target (SPEC §3). The linearisation depends only on the virtual target's true anomaly
+nu_v, so K(nu) is tabulated once (``gain_table``) and interpolated linearly, wrapping at 2 pi.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import numba as nb
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.linalg import expm, solve_discrete_are
+
+from .config import ControlConfig
+from .dynamics import linearisation
+from .orbit import KeplerOrbit, elements_to_state
+
+
+def zoh_discretise(a: NDArray, b: NDArray, dt: float) -> tuple[NDArray, NDArray]:
+    """A_d, B_d of x' = A x + B u with u held over dt: blocks of expm([[A, B], [0, 0]] dt)."""
+    n, m = b.shape
+    block = np.zeros((n + m, n + m))
+    block[:n, :n] = a
+    block[:n, n:] = b
+    e = expm(block * dt)
+    return e[:n, :n], e[:n, n:]
+
+
+def dlqr_gain(a_d: NDArray, b_d: NDArray, q: NDArray, r: NDArray) -> tuple[NDArray, NDArray]:
+    """K = (B_d^T S B_d + R)^-1 B_d^T S A_d and S, the stabilising solution of the DARE."""
+    s = solve_discrete_are(a_d, b_d, q, r)
+    k = np.linalg.solve(b_d.T @ s @ b_d + r, b_d.T @ s @ a_d)
+    return k, s
+
+
+B_INPUT = np.vstack([np.zeros((3, 3)), np.eye(3)])
+
+
+def gain_at(orbit: KeplerOrbit, nu: float, cfg: ControlConfig) -> NDArray:
+    """FTRE gain K (3, 6) of the linearisation at true anomaly nu (rad) of ``orbit``."""
+    r = elements_to_state(orbit.a, orbit.e, orbit.i, orbit.raan, orbit.argp, nu, orbit.mu)[:3]
+    a_d, b_d = zoh_discretise(linearisation(r, orbit.mu), B_INPUT, cfg.period_s)
+    k, _ = dlqr_gain(a_d, b_d, np.diag(cfg.q_diag), np.diag(cfg.r_diag))
+    return k
+
+
+@functools.lru_cache(maxsize=8)
+def gain_table(orbit: KeplerOrbit, cfg: ControlConfig) -> NDArray:
+    """K(nu) on the grid nu_j = j * grid_deg, j = 0 .. 360/grid_deg (last row = first): (J+1, 3, 6).
+
+    Read-only; cached per (orbit, controller configuration).
+    """
+    n_cells = round(360.0 / cfg.grid_deg)
+    nus = np.arange(n_cells) * (2.0 * math.pi / n_cells)
+    table = np.empty((n_cells + 1, 3, 6))
+    for j, nu in enumerate(nus):
+        table[j] = gain_at(orbit, float(nu), cfg)
+    table[-1] = table[0]
+    table.setflags(write=False)
+    return table
+
+
+@nb.njit(cache=True)
+def interpolate_gain_kernel(table: NDArray, nu: float, out: NDArray) -> None:
+    """Periodic linear interpolation of the gain table at nu (rad) into ``out`` (3, 6)."""
+    n_cells = table.shape[0] - 1
+    s = (nu / (2.0 * math.pi)) % 1.0 * n_cells
+    j = int(s)
+    if j >= n_cells:  # s == n_cells only through rounding
+        j = n_cells - 1
+    w = s - j
+    for r in range(3):
+        for c in range(6):
+            out[r, c] = (1.0 - w) * table[j, r, c] + w * table[j + 1, r, c]
+
+
+@nb.njit(cache=True)
+def saturate_kernel(u: NDArray, u_max: float) -> None:
+    """In place: u <- min(|u|, u_max) u/|u|, keeping the direction (SPEC §3)."""
+    n = math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
+    if n > u_max:
+        s = u_max / n
+        for i in range(3):
+            u[i] *= s
+
+
+@nb.njit(cache=True)
+def ftre_control_kernel(table: NDArray, nu_v: float, x_d: NDArray, x_v: NDArray, u_max: float,
+                        k_buf: NDArray, out: NDArray) -> None:
+    """out = sat(-K(nu_v) (x_d - x_v)) in km/s^2; ``k_buf`` (3, 6) is scratch space."""
+    interpolate_gain_kernel(table, nu_v, k_buf)
+    for r in range(3):
+        acc = 0.0
+        for c in range(6):
+            acc -= k_buf[r, c] * (x_d[c] - x_v[c])
+        out[r] = acc
+    saturate_kernel(out, u_max)
+
+
+def interpolate_gain(table: NDArray, nu: float) -> NDArray:
+    """K(nu) (3, 6) interpolated from ``gain_table``."""
+    out = np.empty((3, 6))
+    interpolate_gain_kernel(table, float(nu), out)
+    return out
+
+
+def saturate(u: ArrayLike, u_max: float) -> NDArray:
+    """Direction-preserving saturation of one acceleration (3,) at u_max (km/s^2)."""
+    out = np.array(u, dtype=float)
+    saturate_kernel(out, float(u_max))
+    return out
+
+
+def ftre_control(table: NDArray, nu_v: float, x_d: ArrayLike, x_v: ArrayLike, u_max: float) -> NDArray:
+    """Saturated FTRE acceleration (3,) km/s^2 toward the virtual target x_v (true anomaly nu_v)."""
+    out = np.empty(3)
+    ftre_control_kernel(table, float(nu_v), np.asarray(x_d, dtype=float), np.asarray(x_v, dtype=float),
+                        float(u_max), np.empty((3, 6)), out)
+    return out

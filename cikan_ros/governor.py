@@ -1,0 +1,75 @@
+"""The Governor interface and the conventional (optimal) Time Shift Governor.
+
+A governor answers, at update time t_k, the time shift tau_k <= 0 for the deputy state x_d and
+chief state x_c, given the previous shift tau_{k-1}; with the answer comes a record of what it did.
+The learned governor (Algorithm 1, ``cikan_ros.learn``) implements the same protocol.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+from numpy.typing import ArrayLike
+
+from .config import Config
+from .tsg import Predictor
+
+#: Decision paths, as published in /tsg/time_shift ``source`` and kept in mission records.
+PATH_INITIAL = "initial"        # first-instant search
+PATH_ZERO = "zero"              # tau_prev = 0: answer 0 without prediction (recursive feasibility)
+PATH_VERIFY_ZERO = "verify-zero"  # tau = 0 passed Verify
+PATH_BISECT = "bisect"          # bisection over [tau_prev, 0]
+PATH_NN = "nn"                  # network proposal passed Verify
+PATH_NN_BISECT = "nn+bisect"    # network proposal failed Verify; bisection over [tau_prev, tau_nn]
+
+
+@dataclass(frozen=True)
+class UpdateRecord:
+    """One governor decision: the shift (s), the path taken, Verify calls and wall time (s)."""
+
+    tau_s: float
+    path: str
+    verify_calls: int
+    wall_s: float
+
+
+@runtime_checkable
+class Governor(Protocol):
+    """What the mission loop and the governor node need from a governor."""
+
+    name: str
+    predictor: Predictor
+
+    def initial(self, x_d: ArrayLike, x_c: ArrayLike, t: float) -> UpdateRecord:
+        """First shift at the mission start (raises NoFeasibleShiftError if there is none)."""
+        ...
+
+    def update(self, x_d: ArrayLike, x_c: ArrayLike, t: float, tau_prev: float) -> UpdateRecord:
+        """Shift at update time t (s since epoch) with previous shift tau_prev <= 0 (s)."""
+        ...
+
+
+class ConventionalGovernor:
+    """The optimal TSG pi*: zero test, then bisection to the tolerance over [tau_prev, 0]."""
+
+    name = "conventional"
+
+    def __init__(self, predictor: Predictor) -> None:
+        self.predictor = predictor
+
+    @classmethod
+    def from_config(cls, cfg: Config) -> "ConventionalGovernor":
+        return cls(Predictor.from_config(cfg))
+
+    def initial(self, x_d: ArrayLike, x_c: ArrayLike, t: float) -> UpdateRecord:
+        start = time.perf_counter()
+        tau, calls = self.predictor.initial_shift(x_d, t)
+        return UpdateRecord(tau, PATH_INITIAL, calls, time.perf_counter() - start)
+
+    def update(self, x_d: ArrayLike, x_c: ArrayLike, t: float, tau_prev: float) -> UpdateRecord:
+        start = time.perf_counter()
+        tau, calls = self.predictor.optimal_shift(x_d, t, tau_prev)
+        path = PATH_ZERO if calls == 0 else PATH_VERIFY_ZERO if tau == 0.0 else PATH_BISECT
+        return UpdateRecord(tau, path, calls, time.perf_counter() - start)

@@ -1,0 +1,244 @@
+"""Two-body orbits: classical elements <-> Cartesian, analytic Kepler propagation, VNB frame.
+
+Frames: Earth-centred inertial (ECI). Units: km, s, km/s, radians unless a name says ``deg``.
+The compiled kernels (``*_kernel``) take an orbit as the packed float64 array of
+:attr:`KeplerOrbit.params` so that predictions (``cikan_ros.tsg``) call them without Python
+overhead; the public functions wrap them for any number of epochs.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .config import OrbitConfig
+from .errors import StateError
+
+# Layout of KeplerOrbit.params (the packed form used by compiled kernels).
+P_A, P_E, P_MU, P_N, P_M0 = 0, 1, 2, 3, 4
+P_PVEC = slice(5, 8)   # unit vector to periapsis (ECI)
+P_QVEC = slice(8, 11)  # unit vector 90 deg ahead of periapsis in the orbit plane (ECI)
+N_PARAMS = 11
+
+
+@nb.njit(cache=True)
+def eccentric_anomaly_kernel(mean_anomaly: float, e: float) -> float:
+    """Solve Kepler's equation M = E - e sin E by Newton's method (elliptic, 0 <= e < 1).
+
+    M is wrapped to [-pi, pi); the returned E lies in the same revolution as the wrapped M.
+    """
+    m = (mean_anomaly + math.pi) % (2.0 * math.pi) - math.pi
+    # Starting guess of Danby (1987): converges for every M at e < 1.
+    big_e = m + 0.85 * e * (1.0 if math.sin(m) >= 0.0 else -1.0)
+    for _ in range(50):
+        f = big_e - e * math.sin(big_e) - m
+        step = f / (1.0 - e * math.cos(big_e))
+        big_e -= step
+        if abs(step) < 1e-15:
+            break
+    return big_e
+
+
+@nb.njit(cache=True)
+def state_kernel(orb: NDArray, t: float, out: NDArray) -> float:
+    """Write the state [r; v] at time t (s since epoch) into ``out[0:6]``; return the true anomaly.
+
+    The true anomaly is in [0, 2 pi).
+    """
+    a = orb[P_A]
+    e = orb[P_E]
+    big_e = eccentric_anomaly_kernel(orb[P_M0] + orb[P_N] * t, e)
+    ce = math.cos(big_e)
+    se = math.sin(big_e)
+    s1e = math.sqrt(1.0 - e * e)
+    x = a * (ce - e)          # perifocal position
+    y = a * s1e * se
+    r = a * (1.0 - e * ce)
+    k = math.sqrt(orb[P_MU] * a) / r
+    vx = -k * se              # perifocal velocity
+    vy = k * s1e * ce
+    for i in range(3):
+        p = orb[5 + i]
+        q = orb[8 + i]
+        out[i] = x * p + y * q
+        out[3 + i] = vx * p + vy * q
+    nu = 2.0 * math.atan2(math.sqrt(1.0 + e) * math.sin(0.5 * big_e),
+                          math.sqrt(1.0 - e) * math.cos(0.5 * big_e))
+    if nu < 0.0:
+        nu += 2.0 * math.pi
+    return nu
+
+
+@nb.njit(cache=True)
+def states_kernel(orb: NDArray, times: NDArray, out: NDArray, nus: NDArray) -> None:
+    """Vectorised :func:`state_kernel`: ``out[k] = x(times[k])``, ``nus[k]`` its true anomaly."""
+    for k in range(times.shape[0]):
+        nus[k] = state_kernel(orb, times[k], out[k])
+
+
+def _rotation_pq(i: float, raan: float, argp: float) -> tuple[NDArray, NDArray]:
+    """Perifocal unit vectors P (to periapsis) and Q in ECI for angles in radians."""
+    cO, sO = math.cos(raan), math.sin(raan)
+    cw, sw = math.cos(argp), math.sin(argp)
+    ci, si = math.cos(i), math.sin(i)
+    p = np.array([cO * cw - sO * sw * ci, sO * cw + cO * sw * ci, sw * si])
+    q = np.array([-cO * sw - sO * cw * ci, -sO * sw + cO * cw * ci, cw * si])
+    return p, q
+
+
+def true_to_mean_anomaly(nu: ArrayLike, e: float) -> NDArray:
+    """Mean anomaly (rad) of true anomaly ``nu`` (rad) on an ellipse of eccentricity e."""
+    nu = np.asarray(nu, dtype=float)
+    big_e = 2.0 * np.arctan2(np.sqrt(1.0 - e) * np.sin(nu / 2), np.sqrt(1.0 + e) * np.cos(nu / 2))
+    return big_e - e * np.sin(big_e)
+
+
+@dataclass(frozen=True)
+class KeplerOrbit:
+    """An unforced elliptic orbit, propagated analytically forward and backward in time.
+
+    Attributes are the classical elements (km, rad) and the mean anomaly ``m0`` at t = 0.
+    """
+
+    a: float
+    e: float
+    i: float
+    raan: float
+    argp: float
+    m0: float
+    mu: float
+
+    @classmethod
+    def from_config(cls, cfg: OrbitConfig) -> "KeplerOrbit":
+        nu0 = math.radians(cfg.nu0_deg)
+        return cls(cfg.a_km, cfg.e, math.radians(cfg.i_deg), math.radians(cfg.raan_deg),
+                   math.radians(cfg.argp_deg), float(true_to_mean_anomaly(nu0, cfg.e)), cfg.mu_km3_s2)
+
+    @property
+    def mean_motion(self) -> float:
+        """n = sqrt(mu / a^3) in rad/s."""
+        return math.sqrt(self.mu / self.a**3)
+
+    @property
+    def period(self) -> float:
+        """Orbital period 2 pi / n in s."""
+        return 2.0 * math.pi / self.mean_motion
+
+    @property
+    def params(self) -> NDArray:
+        """Packed float64 array for the compiled kernels (layout ``P_*`` above)."""
+        try:
+            return self._params  # type: ignore[has-type]
+        except AttributeError:
+            p, q = _rotation_pq(self.i, self.raan, self.argp)
+            arr = np.empty(N_PARAMS)
+            arr[:5] = (self.a, self.e, self.mu, self.mean_motion, self.m0)
+            arr[P_PVEC] = p
+            arr[P_QVEC] = q
+            arr.setflags(write=False)
+            object.__setattr__(self, "_params", arr)
+            return arr
+
+    def state(self, t: ArrayLike) -> NDArray:
+        """ECI state(s) [r; v] at time(s) t (s since epoch): shape t.shape + (6,)."""
+        return self.state_and_anomaly(t)[0]
+
+    def state_and_anomaly(self, t: ArrayLike) -> tuple[NDArray, NDArray]:
+        """States (..., 6) and true anomalies (...) in [0, 2 pi) at times t (s since epoch)."""
+        t_arr = np.asarray(t, dtype=float)
+        if not np.all(np.isfinite(t_arr)):
+            raise StateError(f"orbit propagation time must be finite, got {t!r}")
+        flat = np.ascontiguousarray(t_arr.reshape(-1))
+        out = np.empty((flat.size, 6))
+        nus = np.empty(flat.size)
+        states_kernel(self.params, flat, out, nus)
+        return out.reshape(t_arr.shape + (6,)), nus.reshape(t_arr.shape)
+
+
+def elements_to_state(a: ArrayLike, e: ArrayLike, i: ArrayLike, raan: ArrayLike, argp: ArrayLike,
+                      nu: ArrayLike, mu: float) -> NDArray:
+    """Cartesian ECI state(s) (..., 6) from classical elements (km, rad), broadcast together."""
+    a, e, i, raan, argp, nu = np.broadcast_arrays(*(np.asarray(v, dtype=float)
+                                                    for v in (a, e, i, raan, argp, nu)))
+    p_semi = a * (1.0 - e**2)
+    r = p_semi / (1.0 + e * np.cos(nu))
+    r_pf = np.stack([r * np.cos(nu), r * np.sin(nu)], axis=-1)
+    k = np.sqrt(mu / p_semi)
+    v_pf = np.stack([-k * np.sin(nu), k * (e + np.cos(nu))], axis=-1)
+    cO, sO, cw, sw, ci, si = np.cos(raan), np.sin(raan), np.cos(argp), np.sin(argp), np.cos(i), np.sin(i)
+    pvec = np.stack([cO * cw - sO * sw * ci, sO * cw + cO * sw * ci, sw * si], axis=-1)
+    qvec = np.stack([-cO * sw - sO * cw * ci, -sO * sw + cO * cw * ci, cw * si], axis=-1)
+    rr = r_pf[..., :1] * pvec + r_pf[..., 1:] * qvec
+    vv = v_pf[..., :1] * pvec + v_pf[..., 1:] * qvec
+    return np.concatenate([rr, vv], axis=-1)
+
+
+def state_to_elements(x: ArrayLike, mu: float) -> dict[str, NDArray]:
+    """Classical elements of elliptic ECI state(s) (..., 6): a (km), e, i, raan, argp, nu (rad).
+
+    Angles lie in [0, 2 pi) (i in [0, pi]). Circular or equatorial orbits leave argp/raan
+    undefined; they are then set to 0 and the anomaly is measured from the next defined axis.
+    Raises :class:`StateError` for non-finite, degenerate (r = 0) or unbound states.
+    """
+    x = np.asarray(x, dtype=float)
+    check_states(x, "state")
+    r, v = x[..., :3], x[..., 3:]
+    rn = np.linalg.norm(r, axis=-1)
+    vn2 = np.einsum("...i,...i->...", v, v)
+    energy = 0.5 * vn2 - mu / rn
+    if np.any(energy >= 0):
+        raise StateError("state is not on an elliptic orbit (specific energy >= 0)")
+    a = -mu / (2.0 * energy)
+    h = np.cross(r, v)
+    hn = np.linalg.norm(h, axis=-1)
+    if np.any(hn <= 1e-12 * rn * np.sqrt(vn2)):
+        raise StateError("state is degenerate: position and velocity are parallel (rectilinear orbit)")
+    evec = np.cross(v, h) / mu - r / rn[..., None]
+    e = np.linalg.norm(evec, axis=-1)
+    i = np.arccos(np.clip(h[..., 2] / hn, -1.0, 1.0))
+    nvec = np.stack([-h[..., 1], h[..., 0], np.zeros_like(hn)], axis=-1)
+    nn = np.linalg.norm(nvec, axis=-1)
+    eps = 1e-11
+    safe_n = np.where(nn > eps * hn, nn, 1.0)
+    raan = np.where(nn > eps * hn, np.mod(np.arctan2(nvec[..., 1], nvec[..., 0]), 2 * np.pi), 0.0)
+    node = np.where((nn > eps * hn)[..., None], nvec / safe_n[..., None],
+                    np.broadcast_to(np.array([1.0, 0.0, 0.0]), nvec.shape))
+    safe_e = np.where(e > eps, e, 1.0)
+    e_hat = np.where((e > eps)[..., None], evec / safe_e[..., None], node)
+    hhat = h / hn[..., None]
+
+    def angle(frm: NDArray, to: NDArray) -> NDArray:
+        c = np.einsum("...i,...i->...", frm, to)
+        s = np.einsum("...i,...i->...", np.cross(frm, to), hhat)
+        return np.mod(np.arctan2(s, c), 2 * np.pi)
+
+    argp = np.where(e > eps, angle(node, e_hat), 0.0)
+    nu = angle(e_hat, r / rn[..., None])
+    return {"a": a, "e": e, "i": i, "raan": raan, "argp": argp, "nu": nu}
+
+
+def check_states(x: NDArray, name: str) -> None:
+    """Raise :class:`StateError` unless every state (..., 6) is finite with a non-zero position."""
+    if x.shape[-1:] != (6,):
+        raise StateError(f"{name} must have 6 components [r (km); v (km/s)], got shape {x.shape}")
+    if not np.all(np.isfinite(x)):
+        raise StateError(f"{name} has non-finite components: {x}")
+    if np.any(np.linalg.norm(x[..., :3], axis=-1) < 1.0):
+        raise StateError(f"{name} is degenerate: position within 1 km of Earth's centre")
+
+
+def vnb_frame(x_c: ArrayLike) -> NDArray:
+    """Rotation(s) ECI -> VNB of the chief state(s) x_c (..., 6): rows x̂, ŷ, ẑ (..., 3, 3).
+
+    x̂ = v_c/|v_c|, ŷ = (r_c × x̂)/|r_c × x̂|, ẑ = x̂ × ŷ  (SPEC §1). ``R @ p_eci`` gives VNB.
+    """
+    x_c = np.asarray(x_c, dtype=float)
+    xh = x_c[..., 3:] / np.linalg.norm(x_c[..., 3:], axis=-1, keepdims=True)
+    yh = np.cross(x_c[..., :3], xh)
+    yh /= np.linalg.norm(yh, axis=-1, keepdims=True)
+    zh = np.cross(xh, yh)
+    return np.stack([xh, yh, zh], axis=-2)

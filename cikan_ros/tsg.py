@@ -1,0 +1,227 @@
+"""Verify (the closed-loop prediction) and the conventional Time Shift Governor searches (SPEC §5).
+
+Verify(x_d, t_k, tau): from the deputy state x_d at time t_k, track the virtual target
+x_v(t) = x_c(t + tau) with the saturated FTRE law and ZOH over samples j = 0 .. N_p - 1; at each
+sample check the constraints first (deputy minus the real chief), then the terminal set (deputy
+minus the virtual target), then apply the control and step. True iff the terminal set is reached
+before any violation within the horizon.
+
+Feasibility is NOT monotone in tau near the boundary (predicted trajectories graze the LoS cone),
+so the bisection keeps a verified lower end: its answer is always feasible and lies within the
+tolerance of an infeasible shift. That deterministic answer is what this project calls pi*.
+The whole search runs inside one compiled call.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .config import Config
+from .constraints import (C_UMAX, constraint_params, h1_line_of_sight_kernel, h2_thrust_kernel,
+                          h3_approach_velocity_kernel)
+from .control import ftre_control_kernel, gain_table
+from .dynamics import rk4_kernel
+from .errors import NoFeasibleShiftError, StateError
+from .orbit import P_MU, KeplerOrbit, check_states, state_kernel
+
+# Layout of the packed prediction parameters.
+T_SAMPLE, T_NSAMPLES, T_SUBSTEPS, T_TERM_POS, T_TERM_VEL = range(5)
+
+
+@nb.njit(cache=True)
+def verify_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray,
+                  x0: NDArray, t_k: float, tau: float) -> bool:
+    """Verify(x0, t_k, tau) with packed orbit/gains/constraint/prediction parameters."""
+    ts = tp[T_SAMPLE]
+    n = int(tp[T_NSAMPLES])
+    sub = int(tp[T_SUBSTEPS])
+    tpos2 = tp[T_TERM_POS] ** 2
+    tvel2 = tp[T_TERM_VEL] ** 2
+    mu = orb[P_MU]
+    u_max = cp[C_UMAX]
+    x = x0.copy()
+    xc = np.empty(6)
+    xv = np.empty(6)
+    u = np.empty(3)
+    kb = np.empty((3, 6))
+    for j in range(n):
+        t = t_k + j * ts
+        state_kernel(orb, t, xc)
+        if h1_line_of_sight_kernel(x, xc, cp) > 0.0:
+            return False
+        if h3_approach_velocity_kernel(x, xc, cp) > 0.0:
+            return False
+        nu_v = state_kernel(orb, t + tau, xv)
+        dp2 = 0.0
+        dv2 = 0.0
+        for i in range(3):
+            dp2 += (x[i] - xv[i]) ** 2
+            dv2 += (x[3 + i] - xv[3 + i]) ** 2
+        if dp2 <= tpos2 and dv2 <= tvel2:
+            return True
+        ftre_control_kernel(table, nu_v, x, xv, u_max, kb, u)
+        # h2 holds by saturation up to rounding; checked so a changed control law cannot skip it.
+        if h2_thrust_kernel(u, cp) > 1e-12 * u_max:
+            return False
+        rk4_kernel(x, u, ts, sub, mu, x)
+    return False
+
+
+@nb.njit(cache=True)
+def bisect_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, x0: NDArray, t_k: float,
+                  lo: float, hi: float, tol: float) -> tuple[float, int]:
+    """Bisection on [lo, hi] with lo feasible (not re-verified) and hi infeasible.
+
+    Returns (tau, Verify calls); tau is feasible and within ``tol`` of an infeasible shift.
+    """
+    calls = 0
+    while hi - lo > tol:
+        mid = 0.5 * (lo + hi)
+        calls += 1
+        if verify_kernel(orb, table, cp, tp, x0, t_k, mid):
+            lo = mid
+        else:
+            hi = mid
+    return lo, calls
+
+
+@nb.njit(cache=True)
+def conventional_update_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, x0: NDArray,
+                               t_k: float, tau_prev: float, tol: float) -> tuple[float, int]:
+    """pi* over [tau_prev, 0] (tau_prev < 0): zero test first, then bisection. (tau, calls)."""
+    if verify_kernel(orb, table, cp, tp, x0, t_k, 0.0):
+        return 0.0, 1
+    tau, calls = bisect_kernel(orb, table, cp, tp, x0, t_k, tau_prev, 0.0, tol)
+    return tau, calls + 1
+
+
+@nb.njit(cache=True)
+def initial_search_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, x0: NDArray,
+                          t0: float, window: float, grid: float, tol: float) -> tuple[float, int, bool]:
+    """First-instant search (SPEC §5). Returns (tau, Verify calls, found)."""
+    n_grid = int(math.floor(window / grid + 1e-9))
+    xc = np.empty(6)
+    best = 0
+    best_d2 = math.inf
+    for m in range(n_grid + 1):  # tau = -m * grid, m = 0 .. n_grid
+        state_kernel(orb, t0 - m * grid, xc)
+        d2 = (xc[0] - x0[0]) ** 2 + (xc[1] - x0[1]) ** 2 + (xc[2] - x0[2]) ** 2
+        if d2 < best_d2:
+            best_d2 = d2
+            best = m
+    calls = 1
+    if verify_kernel(orb, table, cp, tp, x0, t0, -best * grid):
+        m = best  # walk toward 0 while feasible
+        while m > 0:
+            calls += 1
+            if not verify_kernel(orb, table, cp, tp, x0, t0, -(m - 1) * grid):
+                break
+            m -= 1
+        if m == 0:
+            return 0.0, calls, True
+        lo = -m * grid
+        hi = -(m - 1) * grid
+    else:
+        m = best  # walk away from 0 until feasible
+        found = False
+        while m < n_grid:
+            m += 1
+            calls += 1
+            if verify_kernel(orb, table, cp, tp, x0, t0, -m * grid):
+                found = True
+                break
+        if not found:
+            return math.nan, calls, False
+        lo = -m * grid
+        hi = -(m - 1) * grid
+    tau, c = bisect_kernel(orb, table, cp, tp, x0, t0, lo, hi, tol)
+    return tau, calls + c, True
+
+
+@dataclass(frozen=True)
+class Predictor:
+    """The packed model of one configuration: chief orbit, gain table, constraints, prediction.
+
+    Shared by the governors, the offline mission and the data generator (one Verify for all).
+    """
+
+    config: Config
+    orbit: KeplerOrbit
+    gains: NDArray      # (J+1, 3, 6) gain table
+    cparams: NDArray    # packed constraint parameters
+    tparams: NDArray    # packed prediction parameters
+
+    @classmethod
+    def from_config(cls, cfg: Config) -> "Predictor":
+        orbit = KeplerOrbit.from_config(cfg.orbit)
+        horizon = cfg.tsg.horizon_s if cfg.tsg.horizon_s > 0 else orbit.period
+        n_samples = math.ceil(horizon / cfg.tsg.sample_period_s - 1e-9)
+        tp = np.array([cfg.tsg.sample_period_s, n_samples, cfg.tsg.rk4_substeps,
+                       cfg.tsg.terminal_pos_km, cfg.tsg.terminal_vel_kmps], dtype=float)
+        return cls(cfg, orbit, gain_table(orbit, cfg.control),
+                   constraint_params(cfg.constraints, cfg.control.u_max_kmps2), tp)
+
+    @property
+    def n_samples(self) -> int:
+        """N_p, the number of prediction samples in the horizon."""
+        return int(self.tparams[T_NSAMPLES])
+
+    def _state(self, x_d: ArrayLike, t: float) -> tuple[NDArray, float]:
+        x = np.ascontiguousarray(x_d, dtype=float)
+        check_states(x, "deputy state x_d")
+        if x.shape != (6,):
+            raise StateError(f"deputy state x_d must have shape (6,), got {x.shape}")
+        if not math.isfinite(t):
+            raise StateError(f"time t must be finite, got {t!r}")
+        return x, float(t)
+
+    @staticmethod
+    def _shift(tau: float, name: str) -> float:
+        if not (math.isfinite(tau) and tau <= 0.0):
+            raise StateError(f"time shift {name} must be finite and <= 0 s, got {tau!r}")
+        return float(tau)
+
+    def verify(self, x_d: ArrayLike, t: float, tau: float) -> bool:
+        """Verify(x_d, t, tau): does tracking x_c(. + tau) from x_d at t stay feasible to the terminal set?"""
+        x, t = self._state(x_d, t)
+        return bool(verify_kernel(self.orbit.params, self.gains, self.cparams, self.tparams, x, t,
+                                  self._shift(tau, "tau")))
+
+    def bisect(self, x_d: ArrayLike, t: float, lo: float, hi: float) -> tuple[float, int]:
+        """Bisection between a feasible ``lo`` (not re-verified) and an infeasible ``hi`` (s)."""
+        x, t = self._state(x_d, t)
+        lo, hi = self._shift(lo, "lo"), self._shift(hi, "hi")
+        if lo > hi:
+            raise StateError(f"bisection bracket is empty: lo = {lo} > hi = {hi}")
+        tau, calls = bisect_kernel(self.orbit.params, self.gains, self.cparams, self.tparams, x, t,
+                                   lo, hi, self.config.tsg.tolerance_s)
+        return float(tau), int(calls)
+
+    def optimal_shift(self, x_d: ArrayLike, t: float, tau_prev: float) -> tuple[float, int]:
+        """pi*(x_d, t) over [tau_prev, 0]: (tau, Verify calls). tau_prev = 0 gives 0 with no prediction."""
+        x, t = self._state(x_d, t)
+        tau_prev = self._shift(tau_prev, "tau_prev")
+        if tau_prev == 0.0:
+            return 0.0, 0
+        tau, calls = conventional_update_kernel(self.orbit.params, self.gains, self.cparams,
+                                                self.tparams, x, t, tau_prev, self.config.tsg.tolerance_s)
+        return float(tau), int(calls)
+
+    def initial_shift(self, x_d: ArrayLike, t: float) -> tuple[float, int]:
+        """First-instant search over [-window, 0]; raises NoFeasibleShiftError if none is feasible."""
+        x, t = self._state(x_d, t)
+        cfg = self.config.tsg
+        tau, calls, found = initial_search_kernel(self.orbit.params, self.gains, self.cparams,
+                                                  self.tparams, x, t, cfg.initial_window_s,
+                                                  cfg.initial_grid_s, cfg.tolerance_s)
+        if not found:
+            raise NoFeasibleShiftError(
+                f"no feasible time shift in [-{cfg.initial_window_s:g}, 0] s for this initial "
+                f"condition (deputy at {np.array2string(x[:3], precision=3)} km, t = {t:g} s): "
+                "the start is rejected")
+        return float(tau), int(calls)
