@@ -144,6 +144,8 @@ class TSGConfig:
                self.horizon_s, "must be >= 0 (0 means one chief orbital period)")
         _check(isinstance(self.rk4_substeps, int) and 1 <= self.rk4_substeps <= 1000,
                "tsg.rk4_substeps", self.rk4_substeps, "must be an integer in [1, 1000]")
+        _check(self.tolerance_s >= 1e-9, "tsg.tolerance_s", self.tolerance_s,
+               "must be at least 1e-9 s (shifts are whole nanoseconds)")
         _check(self.initial_grid_s <= self.initial_window_s, "tsg.initial_grid_s",
                self.initial_grid_s, "must not exceed tsg.initial_window_s")
         _check(math.isfinite(self.zero_snap_s) and self.zero_snap_s >= 0, "tsg.zero_snap_s",
@@ -207,7 +209,6 @@ class Config:
         return config_from_flat({**self.flat(), **dotted})
 
 
-_GROUPS = {f.name: f.type for f in fields(Config)}
 _GROUP_CLASSES = {
     "orbit": OrbitConfig, "control": ControlConfig, "constraints": ConstraintConfig,
     "tsg": TSGConfig, "mission": MissionConfig,

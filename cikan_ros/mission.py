@@ -20,6 +20,7 @@ from .errors import NoFeasibleShiftError, StateError
 from .governor import Governor, UpdateRecord
 from .orbit import check_states
 from .tsg import Predictor
+from .units import ns_to_seconds, seconds_to_ns, through_si
 
 #: Attempts of the Monte Carlo rejection sampler before it gives up on a seed.
 MAX_DRAWS = 1000
@@ -47,16 +48,20 @@ def nominal_start(predictor: Predictor) -> NDArray:
     return predictor.orbit.state(nominal_shift(predictor))
 
 
-def sample_start(predictor: Predictor, seed: int) -> NDArray:
+def sample_start(predictor: Predictor, seed: int, sigma_km: float | None = None) -> NDArray:
     """A Monte Carlo start: nominal position + N(0, sigma^2 I) km, nominal velocity, drawn with
-    ``numpy.random.default_rng(seed)`` until h1 <= 0 and an initial shift exists (SPEC §6)."""
+    ``numpy.random.default_rng(seed)`` until h1 <= 0 and an initial shift exists (SPEC §6).
+
+    ``sigma_km`` overrides ``mission.mc_sigma_km`` (the data generator widens the distribution).
+    """
     cfg = predictor.config
+    sigma = cfg.mission.mc_sigma_km if sigma_km is None else sigma_km
     rng = np.random.default_rng(seed)
     x_nom = nominal_start(predictor)
     x_c0 = predictor.orbit.state(0.0)
     for _ in range(MAX_DRAWS):
         x = x_nom.copy()
-        x[:3] += rng.normal(0.0, cfg.mission.mc_sigma_km, 3)
+        x[:3] += rng.normal(0.0, sigma, 3)
         m = margins(x, x_c0, np.zeros(3), cfg.constraints, cfg.control.u_max_kmps2)
         if not m.h1[0] <= 0.0:
             continue
@@ -147,26 +152,28 @@ def run_mission(governor: Governor, x_d0: NDArray, plant: Plant | None = None) -
     tc = cfg.control.period_s
     n_steps = round(cfg.mission.duration_s / tc)
     every = round(cfg.tsg.update_period_s / tc)
-    t = np.arange(n_steps + 1) * tc
+    t = np.array([ns_to_seconds(k * seconds_to_ns(tc)) for k in range(n_steps + 1)])
     x_c = pred.orbit.state(t)
     x_d = np.empty((n_steps + 1, 6))
     u = np.zeros((n_steps + 1, 3))
     taus = np.empty(n_steps + 1)
     updates: list[UpdateRecord] = []
     update_t: list[float] = []
-    first = governor.initial(x, x_c[0], 0.0)
+    first = governor.initial(through_si(x), through_si(x_c[0]), 0.0)
     tau = first.tau_s
     u_max = cfg.control.u_max_kmps2
     for k in range(n_steps):
+        # The governor and the controller see what crosses the ROS boundary (SI and back).
+        x_seen = through_si(x)
         if k > 0 and k % every == 0:
-            rec = governor.update(x, x_c[k], float(t[k]), tau)
+            rec = governor.update(x_seen, through_si(x_c[k]), float(t[k]), tau)
             updates.append(rec)
             update_t.append(float(t[k]))
             tau = rec.tau_s
         x_d[k] = x
         taus[k] = tau
         (x_v, nu_v) = pred.orbit.state_and_anomaly(t[k] + tau)
-        u[k] = ftre_control(pred.gains, float(nu_v), x, x_v, u_max)
+        u[k] = through_si(ftre_control(pred.gains, float(nu_v), x_seen, x_v, u_max))
         x = plant.step(x, u[k], tc)
     x_d[-1] = x
     taus[-1] = tau

@@ -28,6 +28,13 @@ from .control import ftre_control_kernel, gain_table
 from .dynamics import rk4_kernel
 from .errors import NoFeasibleShiftError, StateError
 from .orbit import P_MU, KeplerOrbit, check_states, state_kernel
+from .units import ns_to_seconds
+from .units import seconds_to_ns as to_ns
+
+def quantise_shift(tau: float) -> float:
+    """tau rounded to a whole nanosecond, as every shift a governor verifies and returns."""
+    return ns_to_seconds(to_ns(tau))
+
 
 # Layout of the packed prediction parameters.
 T_SAMPLE, T_NSAMPLES, T_SUBSTEPS, T_TERM_POS, T_TERM_VEL = range(5)
@@ -74,72 +81,74 @@ def verify_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray,
 
 @nb.njit(cache=True)
 def bisect_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, x0: NDArray, t_k: float,
-                  lo: float, hi: float, tol: float) -> tuple[float, int]:
-    """Bisection on [lo, hi] with lo feasible (not re-verified) and hi infeasible.
+                  lo_ns: int, hi_ns: int, tol_ns: int) -> tuple[int, int]:
+    """Bisection on [lo, hi] (integer ns) with lo feasible (not re-verified) and hi infeasible.
 
-    Returns (tau, Verify calls); tau is feasible and within ``tol`` of an infeasible shift.
+    Returns (tau in ns, Verify calls); tau is feasible and within ``tol_ns`` of an infeasible shift.
+    Shifts are whole nanoseconds (the resolution of ROS time stamps), so a verified shift crosses
+    the ROS boundary exactly: tau_s = tau_ns / 1e9 on both sides.
     """
     calls = 0
-    while hi - lo > tol:
-        mid = 0.5 * (lo + hi)
+    while hi_ns - lo_ns > tol_ns:
+        mid = (lo_ns + hi_ns) // 2
         calls += 1
-        if verify_kernel(orb, table, cp, tp, x0, t_k, mid):
-            lo = mid
+        if verify_kernel(orb, table, cp, tp, x0, t_k, mid / 1e9):
+            lo_ns = mid
         else:
-            hi = mid
-    return lo, calls
+            hi_ns = mid
+    return lo_ns, calls
 
 
 @nb.njit(cache=True)
 def conventional_update_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, x0: NDArray,
-                               t_k: float, tau_prev: float, tol: float) -> tuple[float, int]:
-    """pi* over [tau_prev, 0] (tau_prev < 0): zero test first, then bisection. (tau, calls)."""
+                               t_k: float, tau_prev_ns: int, tol_ns: int) -> tuple[int, int]:
+    """pi* over [tau_prev, 0] (tau_prev < 0, ns): zero test first, then bisection. (tau_ns, calls)."""
     if verify_kernel(orb, table, cp, tp, x0, t_k, 0.0):
-        return 0.0, 1
-    tau, calls = bisect_kernel(orb, table, cp, tp, x0, t_k, tau_prev, 0.0, tol)
+        return 0, 1
+    tau, calls = bisect_kernel(orb, table, cp, tp, x0, t_k, tau_prev_ns, 0, tol_ns)
     return tau, calls + 1
 
 
 @nb.njit(cache=True)
 def initial_search_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, x0: NDArray,
-                          t0: float, window: float, grid: float, tol: float) -> tuple[float, int, bool]:
-    """First-instant search (SPEC §5). Returns (tau, Verify calls, found)."""
-    n_grid = int(math.floor(window / grid + 1e-9))
+                          t0: float, window_ns: int, grid_ns: int, tol_ns: int) -> tuple[int, int, bool]:
+    """First-instant search (SPEC §5), times in integer ns. Returns (tau_ns, Verify calls, found).
+
+    tau_near = the grid point of [-window, 0] nearest to the deputy's position; walk the grid from
+    it toward 0 while feasible (or away from 0 until feasible), then bisect between the two
+    adjacent grid points, the feasible one being the verified lower end.
+    """
+    n_grid = window_ns // grid_ns
     xc = np.empty(6)
     best = 0
     best_d2 = math.inf
     for m in range(n_grid + 1):  # tau = -m * grid, m = 0 .. n_grid
-        state_kernel(orb, t0 - m * grid, xc)
+        state_kernel(orb, t0 - m * grid_ns / 1e9, xc)
         d2 = (xc[0] - x0[0]) ** 2 + (xc[1] - x0[1]) ** 2 + (xc[2] - x0[2]) ** 2
         if d2 < best_d2:
             best_d2 = d2
             best = m
     calls = 1
-    if verify_kernel(orb, table, cp, tp, x0, t0, -best * grid):
-        m = best  # walk toward 0 while feasible
-        while m > 0:
+    m = best
+    if verify_kernel(orb, table, cp, tp, x0, t0, -m * grid_ns / 1e9):
+        while m > 0:  # walk toward 0 while feasible
             calls += 1
-            if not verify_kernel(orb, table, cp, tp, x0, t0, -(m - 1) * grid):
+            if not verify_kernel(orb, table, cp, tp, x0, t0, -(m - 1) * grid_ns / 1e9):
                 break
             m -= 1
         if m == 0:
-            return 0.0, calls, True
-        lo = -m * grid
-        hi = -(m - 1) * grid
+            return 0, calls, True
     else:
-        m = best  # walk away from 0 until feasible
         found = False
-        while m < n_grid:
+        while m < n_grid:  # walk away from 0 until feasible
             m += 1
             calls += 1
-            if verify_kernel(orb, table, cp, tp, x0, t0, -m * grid):
+            if verify_kernel(orb, table, cp, tp, x0, t0, -m * grid_ns / 1e9):
                 found = True
                 break
         if not found:
-            return math.nan, calls, False
-        lo = -m * grid
-        hi = -(m - 1) * grid
-    tau, c = bisect_kernel(orb, table, cp, tp, x0, t0, lo, hi, tol)
+            return 0, calls, False
+    tau, c = bisect_kernel(orb, table, cp, tp, x0, t0, -m * grid_ns, -(m - 1) * grid_ns, tol_ns)
     return tau, calls + c, True
 
 
@@ -165,6 +174,11 @@ class Predictor:
                        cfg.tsg.terminal_pos_km, cfg.tsg.terminal_vel_kmps], dtype=float)
         return cls(cfg, orbit, gain_table(orbit, cfg.control),
                    constraint_params(cfg.constraints, cfg.control.u_max_kmps2), tp)
+
+    @property
+    def tol_ns(self) -> int:
+        """Bisection tolerance in integer nanoseconds."""
+        return to_ns(self.config.tsg.tolerance_s)
 
     @property
     def n_samples(self) -> int:
@@ -199,8 +213,8 @@ class Predictor:
         if lo > hi:
             raise StateError(f"bisection bracket is empty: lo = {lo} > hi = {hi}")
         tau, calls = bisect_kernel(self.orbit.params, self.gains, self.cparams, self.tparams, x, t,
-                                   lo, hi, self.config.tsg.tolerance_s)
-        return float(tau), int(calls)
+                                   to_ns(lo), to_ns(hi), self.tol_ns)
+        return ns_to_seconds(tau), int(calls)
 
     def optimal_shift(self, x_d: ArrayLike, t: float, tau_prev: float) -> tuple[float, int]:
         """pi*(x_d, t) over [tau_prev, 0]: (tau, Verify calls). tau_prev = 0 gives 0 with no prediction."""
@@ -209,19 +223,19 @@ class Predictor:
         if tau_prev == 0.0:
             return 0.0, 0
         tau, calls = conventional_update_kernel(self.orbit.params, self.gains, self.cparams,
-                                                self.tparams, x, t, tau_prev, self.config.tsg.tolerance_s)
-        return float(tau), int(calls)
+                                                self.tparams, x, t, to_ns(tau_prev), self.tol_ns)
+        return ns_to_seconds(tau), int(calls)
 
     def initial_shift(self, x_d: ArrayLike, t: float) -> tuple[float, int]:
         """First-instant search over [-window, 0]; raises NoFeasibleShiftError if none is feasible."""
         x, t = self._state(x_d, t)
         cfg = self.config.tsg
         tau, calls, found = initial_search_kernel(self.orbit.params, self.gains, self.cparams,
-                                                  self.tparams, x, t, cfg.initial_window_s,
-                                                  cfg.initial_grid_s, cfg.tolerance_s)
+                                                  self.tparams, x, t, to_ns(cfg.initial_window_s),
+                                                  to_ns(cfg.initial_grid_s), self.tol_ns)
         if not found:
             raise NoFeasibleShiftError(
                 f"no feasible time shift in [-{cfg.initial_window_s:g}, 0] s for this initial "
                 f"condition (deputy at {np.array2string(x[:3], precision=3)} km, t = {t:g} s): "
                 "the start is rejected")
-        return float(tau), int(calls)
+        return ns_to_seconds(tau), int(calls)
