@@ -73,3 +73,22 @@ class ConventionalGovernor:
         tau, calls = self.predictor.optimal_shift(x_d, t, tau_prev)
         path = PATH_ZERO if calls == 0 else PATH_VERIFY_ZERO if tau == 0.0 else PATH_BISECT
         return UpdateRecord(tau, path, calls, time.perf_counter() - start)
+
+
+#: Names of the learned model families shipped in ``models/`` (see ``cikan_ros.learn``).
+LEARNED_NAMES = ("cikan", "grbf", "rswaf", "relu", "gelu")
+GOVERNOR_NAMES = ("conventional",) + LEARNED_NAMES
+
+
+def make_governor(name: str, cfg: Config, predictor: Predictor | None = None) -> Governor:
+    """The governor called ``name``: "conventional", a shipped model family, or a model path.
+
+    Learned governors (Algorithm 1) come from ``cikan_ros.learn``; their files are checked on
+    load and a bad file raises a CikanError naming the problem.
+    """
+    predictor = predictor or Predictor.from_config(cfg)
+    if name == "conventional":
+        return ConventionalGovernor(predictor)
+    from .learn.governor import load_learned_governor  # torch is imported only when needed
+
+    return load_learned_governor(name, predictor)

@@ -1,0 +1,47 @@
+"""The ``cikan`` command. Each subcommand lives in ``cikan_ros.commands.<name>`` and provides
+``register(subparsers)``; heavy imports happen inside the command, so ``cikan --help`` is fast.
+
+Errors the project raises on purpose (:class:`CikanError`) are printed as one line naming the
+problem, with exit code 2; no traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from . import __version__
+from .errors import CikanError
+
+#: Subcommand modules, in the order of ``cikan --help``.
+COMMAND_MODULES = (
+    "cikan_ros.commands.mission",
+    "cikan_ros.commands.bench",
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="cikan", description="Learned time-shift governors for spacecraft rendezvous (cikan_ros).")
+    parser.add_argument("--version", action="version", version=f"cikan_ros {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name in COMMAND_MODULES:
+        importlib.import_module(name).register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except CikanError as exc:
+        print(f"cikan {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"cikan {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,61 @@
+"""Subcommands of ``cikan`` and the options they share."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from typing import Any
+
+import yaml
+
+from ..config import Config
+from ..errors import ConfigError
+
+
+def add_config_args(parser: argparse.ArgumentParser) -> None:
+    """``--config PATH`` and repeatable ``--set group.key=value`` (YAML value)."""
+    parser.add_argument("--config", metavar="PATH", default=None,
+                        help="ROS 2 params YAML file (default: the shipped config/cikan.yaml)")
+    parser.add_argument("--set", metavar="KEY=VALUE", action="append", default=[], dest="overrides",
+                        help="override one parameter, e.g. --set tsg.tolerance_s=1e-4 (repeatable)")
+
+
+def config_from_args(args: argparse.Namespace) -> Config:
+    """The configuration named by ``--config`` with the ``--set`` overrides applied."""
+    from ..config import load_config
+
+    overrides: dict[str, Any] = {}
+    for item in args.overrides:
+        key, sep, text = item.partition("=")
+        if not sep or not key:
+            raise ConfigError(f"--set expects KEY=VALUE, got {item!r}")
+        try:
+            overrides[key.strip()] = yaml.safe_load(text)
+        except yaml.YAMLError:
+            raise ConfigError(f"--set {key}: value {text!r} is not valid YAML") from None
+    return load_config(args.config, **overrides)
+
+
+def json_default(obj: Any) -> Any:
+    """JSON encoder fallback for numpy scalars and arrays."""
+    import numpy as np
+
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+
+
+def dumps(obj: Any) -> str:
+    """One-line JSON with NaN/inf written as null (strict JSON)."""
+    def clean(v: Any) -> Any:
+        if isinstance(v, float) and not math.isfinite(v):
+            return None
+        if isinstance(v, dict):
+            return {k: clean(x) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [clean(x) for x in v]
+        return v
+    return json.dumps(clean(json.loads(json.dumps(obj, default=json_default))), allow_nan=False)

@@ -1,0 +1,88 @@
+"""``cikan mission``: one rendezvous, offline (library only) or as the ROS 2 node graph."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+from . import add_config_args, config_from_args, dumps
+
+SUMMARY_KEYS = (
+    ("success", "docked with zero violations", "{}"),
+    ("violations", "control steps with a violation", "{}"),
+    ("tau0_s", "first time shift tau_0 [s]", "{:.6f}"),
+    ("t_tau_zero_s", "tau reached 0 at [s]", "{}"),
+    ("t_docked_s", "docked (<1 m, <1 mm/s) at [s]", "{}"),
+    ("final_distance_m", "final distance [m]", "{:.3e}"),
+    ("final_speed_mps", "final relative speed [m/s]", "{:.3e}"),
+    ("delta_v_kmps", "delta-V [km/s]", "{:.4f}"),
+    ("min_h1_margin", "min LoS margin -h1/(|v_c||p|)", "{:.3e}"),
+    ("max_h3", "max h3 [km/s]", "{:.3e}"),
+    ("updates", "governor updates", "{}"),
+    ("update_ms_mean", "update time mean / max [ms]", None),
+    ("active_update_ms_mean", "active-phase update mean / max [ms]", None),
+)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("mission", help="run one rendezvous (offline or as the ROS graph)",
+                       description="Run one rendezvous mission and print its metrics.")
+    p.add_argument("--governor", default="conventional", metavar="NAME|PATH",
+                   help="conventional, cikan, grbf, rswaf, relu, gelu, or a model file/directory")
+    p.add_argument("--offline", action="store_true",
+                   help="run the closed loop in-process without ROS (default: the ROS node graph)")
+    p.add_argument("--seed", type=int, default=None,
+                   help="draw the start from the Monte Carlo distribution with this seed "
+                        "(default: the nominal start)")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    p.add_argument("--bag", metavar="DIR", default=None,
+                   help="ROS run: record to this bag directory (default: bags/<time>_<governor>)")
+    add_config_args(p)
+    p.set_defaults(func=run)
+
+
+def print_summary(metrics: dict[str, Any], title: str) -> None:
+    """A readable table of a mission's metrics."""
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.table import Table
+
+    table = Table(title=title, show_header=False)
+    for key, label, fmt in SUMMARY_KEYS:
+        if fmt is None:
+            stem = key.removesuffix("_mean")
+            value = f"{metrics[key]:.3f} / {metrics[stem + '_max']:.3f}"
+        else:
+            v = metrics.get(key)
+            value = "-" if v is None else fmt.format(v)
+        table.add_row(escape(label), value)
+    if "bag" in metrics:
+        table.add_row("bag", str(metrics["bag"]))
+    Console().print(table)
+
+
+def run(args: argparse.Namespace) -> int:
+    cfg = config_from_args(args)
+    if args.offline:
+        from ..governor import make_governor
+        from ..mission import nominal_start, run_mission, sample_start
+
+        governor = make_governor(args.governor, cfg)
+        pred = governor.predictor
+        x0 = nominal_start(pred) if args.seed is None else sample_start(pred, args.seed)
+        metrics = run_mission(governor, x0).metrics()
+        metrics.update(seed=args.seed, mode="offline")
+    else:
+        from ..ros.launch import run_ros_mission
+
+        metrics = run_ros_mission(cfg, governor=args.governor, seed=args.seed, bag=args.bag,
+                                  config_path=args.config, overrides=args.overrides)
+        metrics.update(seed=args.seed, mode="ros")
+    if args.json:
+        print(dumps(metrics))
+    else:
+        start = "nominal start" if args.seed is None else f"Monte Carlo start, seed {args.seed}"
+        print_summary(metrics, f"cikan mission: {metrics['governor']} governor, {start} ({metrics['mode']})")
+    sys.stdout.flush()
+    return 0 if metrics["success"] else 1
