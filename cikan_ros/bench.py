@@ -42,6 +42,10 @@ class BenchStates:
     updates: list[UpdateState]
     starts: list[NDArray]
     mission_wall_s: list[float]
+    #: Conventional TSG per-state wall times (s), filled by ``conventional_section`` (runs first)
+    #: so later sections report speed-ups measured in the same run on the same states.
+    conventional_walls: NDArray | None = None
+    conventional_taus: NDArray | None = None
 
 
 def collect_states(cfg: Config, n_missions: int = 6) -> BenchStates:
@@ -88,7 +92,8 @@ def conventional_section(cfg: Config, states: BenchStates, repeats: int) -> dict
     """Conventional TSG: active-phase update times, Verify cost, first-instant search, mission wall."""
     pred = Predictor.from_config(cfg)
     gov = ConventionalGovernor(pred)
-    walls, _, _, calls = time_updates(gov, states.updates, repeats)
+    walls, taus, _, calls = time_updates(gov, states.updates, repeats)
+    states.conventional_walls, states.conventional_taus = walls, taus
     init = []
     for x0 in states.starts:
         runs = []
