@@ -81,10 +81,11 @@ def verify_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray,
 
 @nb.njit(cache=True)
 def bisect_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, x0: NDArray, t_k: float,
-                  lo_ns: int, hi_ns: int, tol_ns: int) -> tuple[int, int]:
+                  lo_ns: int, hi_ns: int, tol_ns: int) -> tuple[int, int, int]:
     """Bisection on [lo, hi] (integer ns) with lo feasible (not re-verified) and hi infeasible.
 
-    Returns (tau in ns, Verify calls); tau is feasible and within ``tol_ns`` of an infeasible shift.
+    Returns (lo, hi, Verify calls) at the end: the answer lo is feasible and within ``tol_ns`` of
+    the infeasible hi.
     Shifts are whole nanoseconds (the resolution of ROS time stamps), so a verified shift crosses
     the ROS boundary exactly: tau_s = tau_ns / 1e9 on both sides.
     """
@@ -96,7 +97,7 @@ def bisect_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, x0: ND
             lo_ns = mid
         else:
             hi_ns = mid
-    return lo_ns, calls
+    return lo_ns, hi_ns, calls
 
 
 @nb.njit(cache=True)
@@ -105,7 +106,7 @@ def conventional_update_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: ND
     """pi* over [tau_prev, 0] (tau_prev < 0, ns): zero test first, then bisection. (tau_ns, calls)."""
     if verify_kernel(orb, table, cp, tp, x0, t_k, 0.0):
         return 0, 1
-    tau, calls = bisect_kernel(orb, table, cp, tp, x0, t_k, tau_prev_ns, 0, tol_ns)
+    tau, _, calls = bisect_kernel(orb, table, cp, tp, x0, t_k, tau_prev_ns, 0, tol_ns)
     return tau, calls + 1
 
 
@@ -148,7 +149,7 @@ def initial_search_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray
                 break
         if not found:
             return 0, calls, False
-    tau, c = bisect_kernel(orb, table, cp, tp, x0, t0, -m * grid_ns, -(m - 1) * grid_ns, tol_ns)
+    tau, _, c = bisect_kernel(orb, table, cp, tp, x0, t0, -m * grid_ns, -(m - 1) * grid_ns, tol_ns)
     return tau, calls + c, True
 
 
@@ -207,14 +208,22 @@ class Predictor:
                                   self._shift(tau, "tau")))
 
     def bisect(self, x_d: ArrayLike, t: float, lo: float, hi: float) -> tuple[float, int]:
-        """Bisection between a feasible ``lo`` (not re-verified) and an infeasible ``hi`` (s)."""
+        """Bisection between a feasible ``lo`` (not re-verified) and an infeasible ``hi`` (s).
+
+        Returns (tau, Verify calls): tau is feasible and within the tolerance of an infeasible shift.
+        """
+        lo_s, _, calls = self.bisect_bracket(x_d, t, lo, hi)
+        return lo_s, calls
+
+    def bisect_bracket(self, x_d: ArrayLike, t: float, lo: float, hi: float) -> tuple[float, float, int]:
+        """Like :meth:`bisect`, returning the final bracket (feasible lo, infeasible hi, calls)."""
         x, t = self._state(x_d, t)
         lo, hi = self._shift(lo, "lo"), self._shift(hi, "hi")
         if lo > hi:
             raise StateError(f"bisection bracket is empty: lo = {lo} > hi = {hi}")
-        tau, calls = bisect_kernel(self.orbit.params, self.gains, self.cparams, self.tparams, x, t,
-                                   to_ns(lo), to_ns(hi), self.tol_ns)
-        return ns_to_seconds(tau), int(calls)
+        lo_ns, hi_ns, calls = bisect_kernel(self.orbit.params, self.gains, self.cparams, self.tparams,
+                                            x, t, to_ns(lo), to_ns(hi), self.tol_ns)
+        return ns_to_seconds(lo_ns), ns_to_seconds(hi_ns), int(calls)
 
     def optimal_shift(self, x_d: ArrayLike, t: float, tau_prev: float) -> tuple[float, int]:
         """pi*(x_d, t) over [tau_prev, 0]: (tau, Verify calls). tau_prev = 0 gives 0 with no prediction."""
