@@ -1,0 +1,277 @@
+"""Labelled data for the learned governor (SPEC §7): (x_d, x_c, t) -> tau* < 0 from closed loops
+of the conventional TSG started from the widened Monte Carlo distribution.
+
+Mission ``m`` of a dataset with seed ``S`` draws everything from ``numpy.random.default_rng([S, m])``:
+its position spread sigma ~ U[sigma_min, sigma_max] km, its split (train/val/test by a uniform
+draw against the split fractions) and the seed of its start (``mission.sample_start``). Each
+mission is one conventional closed loop (``mission.run_mission``); every active update
+(tau_{k-1} < 0) whose answer tau* = pi*(x) is strictly negative gives one label, with the states
+as the governor saw them (through SI, as in ``cikan_ros.bench.collect_states``). The dataset is
+the labels of missions 0, 1, 2, ... in order, cut at exactly N labels, so the result depends on
+the seed only: not on the number of workers nor on where they run (local processes or Dask).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from concurrent.futures import Future, ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Iterator, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..config import Config, config_from_flat
+from ..errors import NoFeasibleShiftError
+from ..governor import ConventionalGovernor
+from ..mission import MissionResult, run_mission, sample_start
+from ..tsg import Predictor
+from ..units import through_si
+from .errors import DatasetError
+
+#: Parquet columns: state components as the governor saw them (km, km/s, ECI), labels in s.
+XD_COLS = tuple(f"xd{i}" for i in range(6))
+XC_COLS = tuple(f"xc{i}" for i in range(6))
+COLUMNS = ("mission", "split", "t_s", *XD_COLS, *XC_COLS, "tau_prev_s", "tau_star_s", "sigma_km")
+SPLITS = ("train", "val", "test")
+#: Version of the label recipe, stored in the file; bump when labels change meaning.
+RECIPE = "conventional-updates-v1"
+
+
+@dataclass(frozen=True)
+class DatasetSpec:
+    """What defines a dataset besides the configuration: seed, spread of starts, split fractions."""
+
+    seed: int = 0
+    sigma_min_km: float = 5.0
+    sigma_max_km: float = 15.0
+    val_fraction: float = 0.05
+    test_fraction: float = 0.05
+
+    def __post_init__(self) -> None:
+        if not (0.0 <= self.sigma_min_km <= self.sigma_max_km and math.isfinite(self.sigma_max_km)):
+            raise DatasetError(f"need 0 <= sigma_min_km <= sigma_max_km, got "
+                               f"{self.sigma_min_km}, {self.sigma_max_km}")
+        if not (0.0 < self.val_fraction and 0.0 < self.test_fraction
+                and self.val_fraction + self.test_fraction < 1.0):
+            raise DatasetError("val and test fractions must be > 0 and sum to < 1")
+        if self.seed < 0:
+            raise DatasetError(f"seed must be >= 0, got {self.seed}")
+
+
+def mission_plan(spec: DatasetSpec, mission: int) -> tuple[float, str, int]:
+    """(sigma_km, split, start seed) of mission number ``mission``; a pure function of the spec."""
+    rng = np.random.default_rng([spec.seed, mission])
+    sigma = float(rng.uniform(spec.sigma_min_km, spec.sigma_max_km))
+    u = float(rng.uniform())
+    split = "test" if u < spec.test_fraction else "val" if u < spec.test_fraction + spec.val_fraction \
+        else "train"
+    start_seed = int(rng.integers(0, 2**62))
+    return sigma, split, start_seed
+
+
+def update_labels(res: MissionResult) -> dict[str, NDArray]:
+    """Labels of one conventional mission: every update with tau_{k-1} < 0 and tau* < 0.
+
+    States are those the governor was given (``through_si``), as ``bench.collect_states`` takes
+    them; tau* is the governor's answer there, i.e. pi* over [tau_{k-1}, 0].
+    """
+    tc = res.config.control.period_s
+    rows_t, rows_xd, rows_xc, rows_prev, rows_tau = [], [], [], [], []
+    for t_u, rec in zip(res.update_t, res.updates):
+        k = int(round(t_u / tc))
+        tau_prev = float(res.tau[k - 1])
+        if tau_prev < 0.0 and rec.tau_s < 0.0:
+            rows_t.append(float(res.t[k]))
+            rows_xd.append(through_si(res.x_d[k]))
+            rows_xc.append(through_si(res.x_c[k]))
+            rows_prev.append(tau_prev)
+            rows_tau.append(rec.tau_s)
+    n = len(rows_t)
+    return {
+        "t_s": np.array(rows_t, dtype=float),
+        "x_d": np.array(rows_xd, dtype=float).reshape(n, 6),
+        "x_c": np.array(rows_xc, dtype=float).reshape(n, 6),
+        "tau_prev_s": np.array(rows_prev, dtype=float),
+        "tau_star_s": np.array(rows_tau, dtype=float),
+    }
+
+
+_PREDICTORS: dict[str, Predictor] = {}
+
+
+def _predictor(cfg_json: str) -> Predictor:
+    """One Predictor per configuration per process (workers reuse it across tasks)."""
+    pred = _PREDICTORS.get(cfg_json)
+    if pred is None:
+        pred = Predictor.from_config(config_from_flat(json.loads(cfg_json)))
+        _PREDICTORS[cfg_json] = pred
+    return pred
+
+
+def label_missions(cfg_json: str, spec: DatasetSpec, missions: Sequence[int]) -> list[dict[str, Any]]:
+    """Run the given missions and return their labels, one dict per mission (in order).
+
+    Top-level and argument-only so local processes and Dask workers can run it.
+    """
+    pred = _predictor(cfg_json)
+    gov = ConventionalGovernor(pred)
+    out = []
+    for m in missions:
+        sigma, split, start_seed = mission_plan(spec, m)
+        try:
+            x0 = sample_start(pred, start_seed, sigma)
+        except NoFeasibleShiftError:
+            out.append({"mission": m, "split": split, "sigma_km": sigma, "n": 0})
+            continue
+        lab = update_labels(run_mission(gov, x0))
+        out.append({"mission": m, "split": split, "sigma_km": sigma, "n": len(lab["t_s"]), **lab})
+    return out
+
+
+def _chunks(start: int, size: int) -> Iterator[list[int]]:
+    m = start
+    while True:
+        yield list(range(m, m + size))
+        m += size
+
+
+def _ordered(submit: Callable[[list[int]], Any], result: Callable[[Any], list[dict[str, Any]]],
+             in_flight: int, chunk: int) -> Iterator[dict[str, Any]]:
+    """Mission results in mission order, keeping ``in_flight`` chunks running."""
+    ids = _chunks(0, chunk)
+    pending: list[Any] = [submit(next(ids)) for _ in range(in_flight)]
+    try:
+        while True:
+            fut = pending.pop(0)
+            pending.append(submit(next(ids)))
+            yield from result(fut)
+    finally:
+        for fut in pending:
+            if hasattr(fut, "cancel"):
+                fut.cancel()
+
+
+def generate(cfg: Config, n_labels: int, spec: DatasetSpec, workers: int = 1,
+             dask_address: str | None = None, chunk: int = 4, progress: bool = True
+             ) -> tuple["Any", dict[str, Any]]:
+    """Generate exactly ``n_labels`` labels. Returns (pandas DataFrame, metadata).
+
+    ``workers`` local processes (1: in this process) or the Dask cluster at ``dask_address``.
+    """
+    import pandas as pd
+    from tqdm import tqdm
+
+    if n_labels < 1:
+        raise DatasetError(f"--labels must be >= 1, got {n_labels}")
+    if workers < 1:
+        raise DatasetError(f"--workers must be >= 1, got {workers}")
+    cfg_json = json.dumps(cfg.flat(), sort_keys=True)
+    start = time.perf_counter()
+    executor: Any = None
+    client: Any = None
+    if dask_address:
+        from distributed import Client
+
+        client = Client(dask_address, timeout="20s")
+        n_slots = max(1, sum(client.nthreads().values()))
+        stream = _ordered(lambda ids: client.submit(label_missions, cfg_json, spec, ids, pure=False),
+                          lambda f: f.result(), 2 * n_slots, chunk)
+    elif workers > 1:
+        import multiprocessing as mp
+
+        executor = ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"))
+        stream = _ordered(lambda ids: executor.submit(label_missions, cfg_json, spec, ids),
+                          lambda f: f.result(), 2 * workers, chunk)
+    else:
+        stream = _ordered(lambda ids: ids, lambda ids: label_missions(cfg_json, spec, ids), 1, chunk)
+    parts: list[dict[str, Any]] = []
+    total = 0
+    n_missions = 0
+    bar = tqdm(total=n_labels, unit="label", disable=not progress, desc="cikan dataset")
+    try:
+        for res in stream:
+            n_missions += 1
+            take = min(res["n"], n_labels - total)
+            if take > 0:
+                parts.append({**res, "n": take})
+                total += take
+                bar.update(take)
+            if total >= n_labels:
+                break
+    finally:
+        stream.close()
+        bar.close()
+        if executor is not None:
+            executor.shutdown(wait=True, cancel_futures=True)
+        if client is not None:
+            client.close()
+    wall = time.perf_counter() - start
+    cols: dict[str, Any] = {c: [] for c in COLUMNS}
+    for p in parts:
+        n = p["n"]
+        cols["mission"].append(np.full(n, p["mission"], dtype=np.int64))
+        cols["split"].append(np.full(n, p["split"], dtype=object))
+        cols["t_s"].append(p["t_s"][:n])
+        for i in range(6):
+            cols[XD_COLS[i]].append(p["x_d"][:n, i])
+            cols[XC_COLS[i]].append(p["x_c"][:n, i])
+        cols["tau_prev_s"].append(p["tau_prev_s"][:n])
+        cols["tau_star_s"].append(p["tau_star_s"][:n])
+        cols["sigma_km"].append(np.full(n, p["sigma_km"]))
+    df = pd.DataFrame({c: np.concatenate(v) for c, v in cols.items()})
+    df["split"] = df["split"].astype(str)
+    meta = {
+        "recipe": RECIPE,
+        "labels": int(len(df)),
+        "missions": n_missions,
+        "seed": spec.seed,
+        "sigma_min_km": spec.sigma_min_km,
+        "sigma_max_km": spec.sigma_max_km,
+        "val_fraction": spec.val_fraction,
+        "test_fraction": spec.test_fraction,
+        "split_labels": {s: int((df["split"] == s).sum()) for s in SPLITS},
+        "wall_s": wall,
+        "labels_per_s": len(df) / wall if wall > 0 else None,
+        "workers": workers if not dask_address else f"dask:{n_slots}",
+        "config": cfg.flat(),
+    }
+    return df, meta
+
+
+def write_parquet(df: "Any", meta: dict[str, Any], path: str | Path) -> Path:
+    """Write the labels with the metadata as JSON under the schema key ``cikan``."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    table = pa.Table.from_pandas(df, preserve_index=False)
+    table = table.replace_schema_metadata({**(table.schema.metadata or {}),
+                                          b"cikan": json.dumps(meta).encode()})
+    tmp = p.with_name(p.name + ".tmp")
+    pq.write_table(table, tmp)
+    tmp.replace(p)
+    return p
+
+
+def read_parquet(path: str | Path) -> tuple["Any", dict[str, Any]]:
+    """(DataFrame, metadata) of a dataset written by :func:`write_parquet`; checks the columns."""
+    import pyarrow.parquet as pq
+
+    p = Path(path)
+    if not p.exists():
+        raise DatasetError(f"dataset not found: {p}")
+    try:
+        table = pq.read_table(p)
+    except Exception as exc:  # pyarrow raises several types for damaged files
+        raise DatasetError(f"dataset {p} is not a readable Parquet file: {exc}") from None
+    missing = [c for c in COLUMNS if c not in table.column_names]
+    if missing:
+        raise DatasetError(f"dataset {p} lacks columns {missing}")
+    raw = (table.schema.metadata or {}).get(b"cikan")
+    meta = json.loads(raw) if raw else {}
+    return table.to_pandas(), meta
