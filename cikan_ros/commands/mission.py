@@ -48,7 +48,7 @@ def print_summary(metrics: dict[str, Any], title: str) -> None:
     from rich.markup import escape
     from rich.table import Table
 
-    table = Table(title=title, show_header=False)
+    table = Table(show_header=False)
     for key, label, fmt in SUMMARY_KEYS:
         if fmt is None:
             stem = key.removesuffix("_mean")
@@ -59,7 +59,9 @@ def print_summary(metrics: dict[str, Any], title: str) -> None:
         table.add_row(escape(label), value)
     if "bag" in metrics:
         table.add_row("bag", str(metrics["bag"]))
-    Console().print(table)
+    console = Console()
+    console.print(escape(title), style="bold")
+    console.print(table)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -1,0 +1,56 @@
+"""The `cikan` command as a user runs it: a subprocess, its output and exit code."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+REQUIRED = {"success", "violations", "final_distance_m", "final_speed_mps", "delta_v_kmps",
+            "min_h1_margin", "max_h3", "tau0_s", "t_tau_zero_s", "updates", "update_ms_mean",
+            "update_ms_max"}
+
+
+def cikan(*args: str) -> subprocess.CompletedProcess:
+    env = {**os.environ, "COLUMNS": "200"}  # rich wraps tables at the terminal width
+    return subprocess.run([sys.executable, "-m", "cikan_ros.cli", *args], capture_output=True,
+                          text=True, timeout=300, env=env)
+
+
+def test_offline_mission_json():
+    out = cikan("mission", "--offline", "--governor", "conventional", "--json")
+    assert out.returncode == 0, out.stderr
+    m = json.loads(out.stdout)
+    assert REQUIRED <= m.keys()
+    assert m["success"] is True and m["violations"] == 0 and m["seed"] is None
+
+
+def test_offline_mission_summary_with_seed():
+    out = cikan("mission", "--offline", "--seed", "4")
+    assert out.returncode == 0, out.stderr
+    assert "Monte Carlo start, seed 4" in out.stdout and "delta-V [km/s]" in out.stdout
+
+
+@pytest.mark.parametrize("args, match", [
+    (["--set", "orbit.e=1.5"], "orbit.e"),
+    (["--set", "orbit.a_km=.nan"], "orbit.a_km"),
+    (["--set", "tsg.initial_window_s=2"], "no feasible time shift"),
+    (["--set", "nonsense"], "KEY=VALUE"),
+    (["--config", "/nonexistent/cikan.yaml"], "not found"),
+])
+def test_bad_input_gives_a_clear_error(args, match):
+    out = cikan("mission", "--offline", *args)
+    assert out.returncode == 2
+    assert match in out.stderr
+    assert "Traceback" not in out.stderr + out.stdout
+
+
+def test_bench_json_figures():
+    out = cikan("bench", "--json", "--missions", "1", "--repeats", "1")
+    assert out.returncode == 0, out.stderr
+    b = json.loads(out.stdout.strip().splitlines()[-1])
+    assert b["conventional_update_ms_max"] >= b["conventional_update_ms_mean"] > 0
+    assert b["n_update_states"] > 10

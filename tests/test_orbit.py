@@ -1,0 +1,127 @@
+"""Orbit: Kepler propagation against scipy's DOP853, element round trips, VNB frame."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.integrate import solve_ivp
+
+from cikan_ros.dynamics import two_body_rhs
+from cikan_ros.errors import StateError
+from cikan_ros.orbit import (KeplerOrbit, eccentric_anomaly_kernel, elements_to_state,
+                             state_to_elements, vnb_frame)
+
+MU = 398600.4418
+
+
+def test_period_and_periapsis_golden(predictor):
+    """T = 2 pi sqrt(a^3/mu) = 43288.81 s; r_p = a(1-e) = 6928.137 km; v_p = sqrt(mu(1+e)/r_p)."""
+    orbit = predictor.orbit
+    assert orbit.period == pytest.approx(43288.81, abs=0.01)
+    x0 = orbit.state(0.0)
+    assert np.linalg.norm(x0[:3]) == pytest.approx(6928.137, abs=1e-3)
+    assert np.linalg.norm(x0[3:]) == pytest.approx(10.00542, abs=1e-5)
+    assert float(x0[:3] @ x0[3:]) == pytest.approx(0.0, abs=1e-9)  # periapsis: r ⟂ v
+
+
+@pytest.mark.parametrize("direction", [1.0, -1.0])
+def test_kepler_matches_dop853_over_one_period(predictor, direction):
+    """Analytic propagation vs DOP853 (rtol 1e-12) forward and backward over one period: < 1 m."""
+    orbit = predictor.orbit
+    t_end = direction * orbit.period
+    times = np.linspace(0.0, t_end, 201)
+    sol = solve_ivp(lambda _t, y: two_body_rhs(y, np.zeros(3), MU), (0.0, t_end), orbit.state(0.0),
+                    method="DOP853", rtol=1e-12, atol=1e-12, t_eval=times)
+    kepler = orbit.state(times)
+    pos_err = np.linalg.norm(kepler[:, :3] - sol.y[:3].T, axis=1)
+    vel_err = np.linalg.norm(kepler[:, 3:] - sol.y[3:].T, axis=1)
+    assert pos_err.max() < 1e-3  # km
+    assert vel_err.max() < 1e-6  # km/s
+
+
+def test_state_shapes_and_anomaly_range(predictor):
+    t = np.linspace(-5e4, 5e4, 12).reshape(3, 4)
+    x, nu = predictor.orbit.state_and_anomaly(t)
+    assert x.shape == (3, 4, 6) and nu.shape == (3, 4)
+    assert np.all((nu >= 0) & (nu < 2 * np.pi))
+    assert predictor.orbit.state(0.0).shape == (6,)
+
+
+def test_chief_elements_recovered(cfg, predictor):
+    """Cartesian -> elements of the chief at any time gives the configured elements."""
+    x = predictor.orbit.state(np.array([0.0, 1234.5, -20000.0]))
+    el = state_to_elements(x, MU)
+    np.testing.assert_allclose(el["a"], cfg.orbit.a_km, rtol=1e-12)
+    np.testing.assert_allclose(el["e"], cfg.orbit.e, rtol=1e-11)
+    np.testing.assert_allclose(el["i"], math.radians(cfg.orbit.i_deg), atol=1e-12)
+    np.testing.assert_allclose(el["argp"], math.radians(cfg.orbit.argp_deg), atol=1e-10)
+    assert el["nu"][0] == pytest.approx(0.0, abs=1e-10) or el["nu"][0] == pytest.approx(2 * np.pi, abs=1e-10)
+
+
+elements = st.tuples(
+    st.floats(7000.0, 60000.0),          # a
+    st.floats(0.01, 0.9),                # e
+    st.floats(0.05, math.pi - 0.05),     # i
+    st.floats(0.0, 2 * math.pi - 1e-6),  # raan
+    st.floats(0.0, 2 * math.pi - 1e-6),  # argp
+    st.floats(0.0, 2 * math.pi - 1e-6),  # nu
+)
+
+
+@settings(max_examples=200, deadline=None)
+@given(elements)
+def test_elements_round_trip(el):
+    a, e, i, raan, argp, nu = el
+    x = elements_to_state(a, e, i, raan, argp, nu, MU)
+    back = state_to_elements(x, MU)
+    x2 = elements_to_state(back["a"], back["e"], back["i"], back["raan"], back["argp"], back["nu"], MU)
+    np.testing.assert_allclose(x2, x, rtol=0, atol=1e-8 * max(1.0, float(np.abs(x).max())))
+    assert back["a"] == pytest.approx(a, rel=1e-10)
+    assert back["e"] == pytest.approx(e, abs=1e-10)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.floats(-100.0, 100.0), st.floats(0.0, 0.99))
+def test_kepler_equation_residual(m, e):
+    """E - e sin E = M (mod 2 pi) for every M and e < 1."""
+    big_e = eccentric_anomaly_kernel(m, e)
+    resid = (big_e - e * math.sin(big_e) - m + math.pi) % (2 * math.pi) - math.pi
+    assert abs(resid) < 1e-12
+
+
+def test_vnb_frame_is_orthonormal_and_along_velocity(predictor):
+    x = predictor.orbit.state(np.linspace(0, 40000, 7))
+    rot = vnb_frame(x)
+    for r, xc in zip(rot, x):
+        np.testing.assert_allclose(r @ r.T, np.eye(3), atol=1e-13)
+        assert np.linalg.det(r) == pytest.approx(1.0, abs=1e-12)
+        np.testing.assert_allclose(r[0], xc[3:] / np.linalg.norm(xc[3:]), atol=1e-14)
+        assert abs(r[1] @ xc[:3]) < 1e-9  # ŷ is normal to the orbit plane
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_non_finite_time_is_rejected(predictor, bad):
+    with pytest.raises(StateError, match="finite"):
+        predictor.orbit.state(bad)
+
+
+def test_degenerate_states_are_rejected():
+    with pytest.raises(StateError, match="non-finite"):
+        state_to_elements([7000.0, 0, 0, np.nan, 7.5, 0], MU)
+    with pytest.raises(StateError, match="parallel"):
+        state_to_elements([7000.0, 0, 0, 1.0, 0, 0], MU)
+    with pytest.raises(StateError, match="elliptic"):
+        state_to_elements([7000.0, 0, 0, 0, 20.0, 0], MU)
+    with pytest.raises(StateError, match="centre"):
+        state_to_elements([0.0, 0, 0, 0, 7.5, 0], MU)
+
+
+def test_orbit_from_config_true_anomaly(cfg):
+    """nu0 = 90 deg gives a state at true anomaly 90 deg at t = 0."""
+    orbit = KeplerOrbit.from_config(type(cfg.orbit)(nu0_deg=90.0))
+    _, nu = orbit.state_and_anomaly(0.0)
+    assert float(nu) == pytest.approx(math.pi / 2, abs=1e-12)
