@@ -17,6 +17,7 @@ from .errors import CikanError
 #: Subcommand modules, in the order of ``cikan --help``.
 COMMAND_MODULES = (
     "cikan_ros.commands.mission",
+    "cikan_ros.commands.montecarlo",
     "cikan_ros.commands.bench",
     "cikan_ros.commands.dataset",
 )

@@ -1,0 +1,157 @@
+"""Monte Carlo evaluation (SPEC §6, §9): many missions from seeded starts, for one or more governors.
+
+Run i of a campaign with base seed S starts from ``sample_start(seed = S + i)``, so every governor
+flies the same starts and ``cikan mission --seed S+i`` replays one run. Each run leaves
+``<out>/<governor>/seed_<n>.json`` (metrics and the configuration) and ``seed_<n>.npz`` (the
+trajectory, constraint values and update records; numpy arrays only, loaded without pickle), so
+tables can be rebuilt without re-running; a result whose configuration matches is reused.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+
+from .config import Config, config_from_flat
+from .errors import CikanError
+from .governor import Governor, make_governor
+from .mission import MissionResult, run_mission, sample_start
+from .parallel import ordered_map
+
+_GOVERNORS: dict[tuple[str, str], Governor] = {}
+
+
+@dataclass(frozen=True)
+class RunTask:
+    """One Monte Carlo run, as sent to a worker (plain data, picklable)."""
+
+    config_json: str
+    governor: str
+    seed: int
+    out_dir: str
+
+
+def governor_label(name: str) -> str:
+    """Directory name of a governor: its family name, or the stem of a model path."""
+    return Path(name).name.removesuffix(".safetensors") if ("/" in name or name.endswith(".safetensors")) else name
+
+
+def run_paths(out_dir: str | Path, governor: str, seed: int) -> tuple[Path, Path]:
+    base = Path(out_dir) / governor_label(governor) / f"seed_{seed:05d}"
+    return base.with_suffix(".json"), base.with_suffix(".npz")
+
+
+def save_run(res: MissionResult, seed: int, json_path: Path, npz_path: Path) -> dict[str, Any]:
+    """Write a run's metrics (JSON) and arrays (npz); return the metrics."""
+    metrics = res.metrics()
+    metrics["seed"] = seed
+    json_path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(
+        npz_path, t=res.t, x_d=res.x_d, x_c=res.x_c, u=res.u, tau=res.tau,
+        h1=res.margins.h1, h1_normalised=res.margins.h1_normalised, h2=res.margins.h2, h3=res.margins.h3,
+        update_t=res.update_t, update_tau=np.array([r.tau_s for r in res.updates]),
+        update_path=np.array([r.path for r in res.updates], dtype=str),
+        update_wall_s=np.array([r.wall_s for r in res.updates]),
+        update_verify_calls=np.array([r.verify_calls for r in res.updates]),
+        initial=np.array([res.initial.tau_s, res.initial.wall_s, res.initial.verify_calls]))
+    tmp = json_path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps({"metrics": metrics, "config": res.config.flat()}, indent=1))
+    tmp.replace(json_path)  # the JSON appears last and atomically: it marks a complete run
+    return metrics
+
+
+def load_run_arrays(npz_path: str | Path) -> dict[str, np.ndarray]:
+    """A run's arrays (no pickle)."""
+    with np.load(npz_path, allow_pickle=False) as data:
+        return {k: data[k] for k in data.files}
+
+
+def run_one(task: RunTask) -> dict[str, Any]:
+    """Fly one Monte Carlo run (or reuse its stored result); return its metrics."""
+    json_path, npz_path = run_paths(task.out_dir, task.governor, task.seed)
+    flat = json.loads(task.config_json)
+    if json_path.exists() and npz_path.exists():
+        try:
+            stored = json.loads(json_path.read_text())
+            if stored.get("config") == flat:
+                return stored["metrics"]
+        except (json.JSONDecodeError, KeyError):
+            pass  # an unreadable result is flown again
+    key = (task.config_json, task.governor)
+    gov = _GOVERNORS.get(key)
+    if gov is None:
+        gov = _GOVERNORS[key] = make_governor(task.governor, config_from_flat(flat))
+    x0 = sample_start(gov.predictor, task.seed)
+    return save_run(run_mission(gov, x0), task.seed, json_path, npz_path)
+
+
+def run_campaign(cfg: Config, governors: list[str], runs: int, seed: int, out_dir: str | Path,
+                 workers: int = 1, dask_address: str | None = None, progress: bool = True
+                 ) -> dict[str, list[dict[str, Any]]]:
+    """All runs of all governors: {governor label: [metrics of run 0 .. runs-1]}."""
+    from tqdm import tqdm
+
+    if runs < 1:
+        raise CikanError(f"--runs must be >= 1, got {runs}")
+    cfg_json = json.dumps(cfg.flat(), sort_keys=True)
+    tasks = [RunTask(cfg_json, g, seed + i, str(out_dir)) for g in governors for i in range(runs)]
+    out: dict[str, list[dict[str, Any]]] = {governor_label(g): [] for g in governors}
+    results: Iterator[dict[str, Any]] = ordered_map(run_one, tasks, workers, dask_address)
+    with tqdm(total=len(tasks), unit="run", desc="cikan montecarlo", disable=not progress) as bar:
+        for task, metrics in zip(tasks, results):
+            out[governor_label(task.governor)].append(metrics)
+            bar.update()
+    return out
+
+
+def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """Campaign figures of one governor (SPEC §9): success count, violations, dV, margins, times."""
+    def col(key: str) -> np.ndarray:
+        return np.array([r[key] for r in runs if r.get(key) is not None], dtype=float)
+
+    dv = col("delta_v_kmps")
+    n_updates = col("updates")
+    n_active = col("active_updates")
+    # Means over all updates of all runs: weight each run's mean by its number of updates.
+    mean_all = float((col("update_ms_mean") * n_updates).sum() / n_updates.sum()) if n_updates.sum() else 0.0
+    mean_active = (float((col("active_update_ms_mean") * n_active).sum() / n_active.sum())
+                   if n_active.sum() else 0.0)
+    return {
+        "runs": len(runs),
+        "successes": int(sum(bool(r["success"]) for r in runs)),
+        "violations": int(col("violations").sum()),
+        "delta_v_kmps_mean": float(dv.mean()),
+        "delta_v_kmps_std": float(dv.std(ddof=1)) if dv.size > 1 else 0.0,
+        "delta_v_kmps_max": float(dv.max()),
+        "min_h1_margin": float(col("min_h1_margin").min()),
+        "max_h3": float(col("max_h3").max()) if col("max_h3").size else math.nan,
+        "tau0_s_mean": float(col("tau0_s").mean()),
+        "t_tau_zero_s_mean": float(col("t_tau_zero_s").mean()) if col("t_tau_zero_s").size else math.nan,
+        "t_tau_zero_s_max": float(col("t_tau_zero_s").max()) if col("t_tau_zero_s").size else math.nan,
+        "final_distance_m_max": float(col("final_distance_m").max()),
+        "update_ms_mean": mean_all,
+        "update_ms_max": float(col("update_ms_max").max()),
+        "active_update_ms_mean": mean_active,
+        "active_update_ms_max": float(col("active_update_ms_max").max()),
+        "initial_ms_mean": float(col("initial_ms").mean()),
+        "initial_ms_max": float(col("initial_ms").max()),
+    }
+
+
+def markdown_summary(summaries: dict[str, dict[str, Any]]) -> str:
+    """A Markdown table of campaign figures, one row per governor."""
+    head = ("| governor | runs | success | violations | ΔV mean (km/s) | ΔV max | min h1 margin | max h3 (km/s) "
+            "| update ms mean / max | active ms mean / max |")
+    lines = [head, "|" + "---|" * 10]
+    for g, s in summaries.items():
+        lines.append(
+            f"| {g} | {s['runs']} | {s['successes']} | {s['violations']} | {s['delta_v_kmps_mean']:.4f} "
+            f"| {s['delta_v_kmps_max']:.4f} | {s['min_h1_margin']:.2e} | {s['max_h3']:.2e} "
+            f"| {s['update_ms_mean']:.3f} / {s['update_ms_max']:.2f} "
+            f"| {s['active_update_ms_mean']:.3f} / {s['active_update_ms_max']:.2f} |")
+    return "\n".join(lines) + "\n"
