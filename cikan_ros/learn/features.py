@@ -1,0 +1,72 @@
+"""Network inputs (SPEC §7): 12 features of (x_d, x_c) computed in float64, then z-scored.
+
+Feature sets (named in every model card):
+
+- ``"eci"``: (x_d - x_c, x_c) in ECI, km and km/s: the SPEC's default inputs.
+- ``"vnb"``: the relative state x_d - x_c rotated into the chief's VNB frame (SPEC §1: x̂ along
+  v_c, ŷ = r_c × x̂ normalised, ẑ = x̂ × ŷ), then x_c in ECI. Same information (the rotation is a
+  function of x_c), but the line-of-sight cone is fixed in this frame, so the map is simpler.
+
+Raw ECI positions in float32 cannot resolve metre offsets, hence float64 until after z-scoring.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..orbit import vnb_frame
+
+FEATURE_SETS = ("eci", "vnb")
+N_FEATURES = 12
+
+
+def features(x_d: ArrayLike, x_c: ArrayLike, kind: str = "vnb") -> NDArray:
+    """Features of states x_d, x_c (..., 6) [km, km/s] -> (..., 12) float64."""
+    x_d = np.asarray(x_d, dtype=np.float64)
+    x_c = np.asarray(x_c, dtype=np.float64)
+    rel = x_d - x_c
+    if kind == "eci":
+        return np.concatenate([rel, x_c], axis=-1)
+    if kind == "vnb":
+        rot = vnb_frame(x_c)                                     # (..., 3, 3)
+        p = np.einsum("...ij,...j->...i", rot, rel[..., :3])
+        v = np.einsum("...ij,...j->...i", rot, rel[..., 3:])
+        return np.concatenate([p, v, x_c], axis=-1)
+    raise ValueError(f"unknown feature set {kind!r}; known: {FEATURE_SETS}")
+
+
+def features_one(x_d: NDArray, x_c: NDArray, kind: str, out: NDArray) -> NDArray:
+    """Single-sample :func:`features` into ``out`` (12,), with scalar arithmetic (no temporaries
+    of numpy's small-array overhead); equal to :func:`features` to rounding."""
+    r0, r1, r2, w0, w1, w2 = (float(x_c[0]), float(x_c[1]), float(x_c[2]),
+                              float(x_c[3]), float(x_c[4]), float(x_c[5]))
+    d = [float(x_d[i]) - float(x_c[i]) for i in range(6)]
+    if kind == "eci":
+        out[:6] = d
+    elif kind == "vnb":
+        nv = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+        x0, x1, x2 = w0 / nv, w1 / nv, w2 / nv
+        y0, y1, y2 = r1 * x2 - r2 * x1, r2 * x0 - r0 * x2, r0 * x1 - r1 * x0
+        ny = math.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
+        y0, y1, y2 = y0 / ny, y1 / ny, y2 / ny
+        z0, z1, z2 = x1 * y2 - x2 * y1, x2 * y0 - x0 * y2, x0 * y1 - x1 * y0
+        for o in (0, 3):
+            a, b, c = d[o], d[o + 1], d[o + 2]
+            out[o] = x0 * a + x1 * b + x2 * c
+            out[o + 1] = y0 * a + y1 * b + y2 * c
+            out[o + 2] = z0 * a + z1 * b + z2 * c
+    else:
+        raise ValueError(f"unknown feature set {kind!r}; known: {FEATURE_SETS}")
+    out[6:] = (r0, r1, r2, w0, w1, w2)
+    return out
+
+
+def fit_normalisation(feats: NDArray) -> tuple[NDArray, NDArray]:
+    """Mean and standard deviation (12,) of training features; a constant feature gets std 1."""
+    mean = feats.mean(axis=0)
+    std = feats.std(axis=0)
+    std = np.where(std > 0, std, 1.0)
+    return mean, std

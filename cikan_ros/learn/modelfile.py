@@ -1,0 +1,191 @@
+"""Model files: ``model.safetensors`` (weights and normalisation, no pickle) + ``card.json``.
+
+The card states the architecture, feature normalisation, dataset (size, seed, recipe), losses,
+parameter counts, library versions and the CPU training budget, plus the SHA-256 of the weights
+file. :func:`load_model` checks everything and raises :class:`ModelFileError` naming the problem
+on a missing, truncated, corrupt or mismatched file. Loading needs numpy and safetensors only
+(no torch), so a governor starts fast.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import platform
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .arch import FAMILIES, NORM_TENSORS, Arch
+from .errors import ModelFileError
+
+FORMAT = "cikan-model/1"
+WEIGHTS = "model.safetensors"
+CARD = "card.json"
+#: Shipped models: ``models/<family>/`` at the repository root.
+MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
+
+
+@dataclass(frozen=True)
+class LoadedModel:
+    """A checked model: architecture, tensors (float64 numpy), card and directory."""
+
+    arch: Arch
+    tensors: dict[str, NDArray]
+    card: dict[str, Any]
+    path: Path
+
+
+def sha256_file(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def library_versions() -> dict[str, str]:
+    """Versions of the libraries that produced a model."""
+    import numpy
+    import safetensors
+
+    from .. import __version__
+
+    out = {"python": platform.python_version(), "numpy": numpy.__version__,
+           "safetensors": safetensors.__version__, "cikan_ros": __version__}
+    try:
+        import torch
+
+        out["torch"] = torch.__version__
+    except ImportError:  # pragma: no cover - training always has torch
+        pass
+    return out
+
+
+def save_model(directory: str | Path, arch: Arch, tensors: Mapping[str, Any],
+               card: Mapping[str, Any]) -> Path:
+    """Write weights and card into ``directory``. ``tensors``: name -> torch tensor or array
+    (trainable tensors as float32, normalisation buffers as float64)."""
+    from safetensors.numpy import save_file
+
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    arrays: dict[str, NDArray] = {}
+    for name, t in tensors.items():
+        a = t.detach().cpu().numpy() if hasattr(t, "detach") else np.asarray(t)
+        arrays[name] = np.ascontiguousarray(a.astype(np.float64 if name in NORM_TENSORS else np.float32))
+    _check_tensors(arch, arrays, d / WEIGHTS)
+    tmp = d / (WEIGHTS + ".tmp")
+    save_file(arrays, str(tmp), metadata={"format": FORMAT, "family": arch.family})
+    tmp.replace(d / WEIGHTS)
+    full = {
+        "format": FORMAT,
+        **dict(card),
+        "architecture": arch.to_dict(),
+        "normalisation": {
+            "features": arch.features,
+            "feature_mean": arrays["feature_mean"].tolist(),
+            "feature_std": arrays["feature_std"].tolist(),
+            "target": "ln|tau*| with tau* in s",
+            "target_mean": float(arrays["target_mean"][0]),
+            "target_std": float(arrays["target_std"][0]),
+        },
+        "parameters": {"trainable": arch.n_params(), "complexity_n2l_G3": arch.complexity(),
+                       "tensors": {k: list(v) for k, v in arch.tensor_shapes().items()}},
+        "weights_file": WEIGHTS,
+        "weights_sha256": sha256_file(d / WEIGHTS),
+    }
+    full.setdefault("versions", library_versions())
+    (d / (CARD + ".tmp")).write_text(json.dumps(full, indent=2) + "\n")
+    (d / (CARD + ".tmp")).replace(d / CARD)
+    return d
+
+
+def resolve(name_or_path: str | Path) -> Path:
+    """A family name (``models/<family>/``), a model directory, or a file inside one."""
+    s = str(name_or_path)
+    if s in FAMILIES and not Path(s).exists():
+        d = MODELS_DIR / s
+    else:
+        p = Path(s)
+        d = p.parent if p.is_file() or p.name in (WEIGHTS, CARD) else p
+    if not d.is_dir():
+        raise ModelFileError(f"model directory not found: {d}")
+    return d
+
+
+def _check_tensors(arch: Arch, arrays: Mapping[str, NDArray], where: Path) -> None:
+    expected = {**arch.tensor_shapes(), **NORM_TENSORS}
+    missing = sorted(set(expected) - set(arrays))
+    extra = sorted(set(arrays) - set(expected))
+    if missing or extra:
+        raise ModelFileError(f"{where}: tensors do not match the {arch.family} architecture "
+                             f"(missing {missing[:4]}{'...' if len(missing) > 4 else ''}, "
+                             f"unexpected {extra[:4]}{'...' if len(extra) > 4 else ''})")
+    for name, shape in expected.items():
+        a = arrays[name]
+        if tuple(a.shape) != tuple(shape):
+            raise ModelFileError(f"{where}: tensor {name} has shape {tuple(a.shape)}, the card's "
+                                 f"architecture needs {tuple(shape)}")
+        if not np.all(np.isfinite(a)):
+            raise ModelFileError(f"{where}: tensor {name} has non-finite values")
+    for name in ("feature_std", "target_std"):
+        if not np.all(arrays[name] > 0):
+            raise ModelFileError(f"{where}: normalisation {name} must be > 0")
+
+
+def load_model(name_or_path: str | Path) -> LoadedModel:
+    """Load and check a model directory; every failure is a :class:`ModelFileError`."""
+    from safetensors import SafetensorError
+    from safetensors.numpy import load_file
+
+    d = resolve(name_or_path)
+    card_path, weights_path = d / CARD, d / WEIGHTS
+    for p, what in ((card_path, "card"), (weights_path, "weights file")):
+        if not p.is_file():
+            raise ModelFileError(f"model {what} missing: {p}")
+    try:
+        card = json.loads(card_path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ModelFileError(f"model card {card_path} is not valid JSON ({exc})") from None
+    if not isinstance(card, dict) or card.get("format") != FORMAT:
+        raise ModelFileError(f"model card {card_path} is not a {FORMAT} card "
+                             f"(format = {card.get('format') if isinstance(card, dict) else None!r})")
+    for key in ("architecture", "normalisation", "weights_sha256", "parameters"):
+        if key not in card:
+            raise ModelFileError(f"model card {card_path} lacks {key!r}")
+    arch = Arch.from_dict(card["architecture"])
+    digest = sha256_file(weights_path)
+    if digest != card["weights_sha256"]:
+        raise ModelFileError(f"weights file {weights_path} does not match its card (SHA-256 "
+                             f"{digest[:12]}... != {str(card['weights_sha256'])[:12]}...): "
+                             "truncated, corrupt or replaced")
+    try:
+        raw = load_file(str(weights_path))
+    except (SafetensorError, OSError, ValueError) as exc:
+        raise ModelFileError(f"weights file {weights_path} is not a readable safetensors file "
+                             f"({exc})") from None
+    for name, a in raw.items():
+        want = np.float64 if name in NORM_TENSORS else np.float32
+        if a.dtype != want:
+            raise ModelFileError(f"{weights_path}: tensor {name} is {a.dtype}, expected {np.dtype(want)}")
+    _check_tensors(arch, raw, weights_path)
+    norm = card["normalisation"]
+    if norm.get("features") != arch.features:
+        raise ModelFileError(f"{card_path}: normalisation is for feature set "
+                             f"{norm.get('features')!r}, architecture uses {arch.features!r}")
+    for name in ("feature_mean", "feature_std", "target_mean", "target_std"):
+        card_v = np.atleast_1d(np.asarray(norm.get(name), dtype=np.float64))
+        if card_v.shape != raw[name].shape or not np.array_equal(card_v, raw[name]):
+            raise ModelFileError(f"{card_path}: normalisation {name} differs from the weights file")
+    if card["parameters"].get("trainable") != arch.n_params():
+        raise ModelFileError(f"{card_path}: parameter count {card['parameters'].get('trainable')} "
+                             f"!= {arch.n_params()} of the architecture")
+    tensors = {k: v.astype(np.float64) for k, v in raw.items()}
+    if not math.isfinite(float(tensors["target_mean"][0])):  # pragma: no cover - checked above
+        raise ModelFileError(f"{weights_path}: non-finite target normalisation")
+    return LoadedModel(arch, tensors, card, d)
