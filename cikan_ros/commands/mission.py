@@ -73,7 +73,11 @@ def run(args: argparse.Namespace) -> int:
         governor = make_governor(args.governor, cfg)
         pred = governor.predictor
         x0 = nominal_start(pred) if args.seed is None else sample_start(pred, args.seed)
-        metrics = run_mission(governor, x0).metrics()
+        result = run_mission(governor, x0)
+        metrics = result.metrics()
+        if governor.name != "conventional":  # fraction of consulted proposals that passed Verify
+            from ..learn.governor import nn_accept_rate
+            metrics["nn_accept_rate"] = nn_accept_rate(result.updates)
         metrics.update(seed=args.seed, mode="offline")
     else:
         from ..ros.launch import run_ros_mission
