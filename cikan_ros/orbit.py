@@ -26,17 +26,10 @@ N_PARAMS = 11
 
 
 @nb.njit(cache=True)
-def eccentric_anomaly_kernel(mean_anomaly: float, e: float) -> float:
-    """Solve Kepler's equation M = E - e sin E by Newton's method (elliptic, 0 <= e < 1).
-
-    M is wrapped to [-pi, pi); the returned E lies in the same revolution as the wrapped M.
-    """
-    m = (mean_anomaly + math.pi) % (2.0 * math.pi) - math.pi
-    # Starting guess of Danby (1987): converges for every M at e < 1.
-    big_e = m + 0.85 * e * (1.0 if math.sin(m) >= 0.0 else -1.0)
+def _kepler_newton(m: float, e: float, big_e: float) -> float:
+    """Newton's method on E - e sin E = m from the guess ``big_e``."""
     for _ in range(50):
-        f = big_e - e * math.sin(big_e) - m
-        step = f / (1.0 - e * math.cos(big_e))
+        step = (big_e - e * math.sin(big_e) - m) / (1.0 - e * math.cos(big_e))
         big_e -= step
         if abs(step) < 1e-15:
             break
@@ -44,14 +37,21 @@ def eccentric_anomaly_kernel(mean_anomaly: float, e: float) -> float:
 
 
 @nb.njit(cache=True)
-def state_kernel(orb: NDArray, t: float, out: NDArray) -> float:
-    """Write the state [r; v] at time t (s since epoch) into ``out[0:6]``; return the true anomaly.
+def eccentric_anomaly_kernel(mean_anomaly: float, e: float) -> float:
+    """Solve Kepler's equation M = E - e sin E by Newton's method (elliptic, 0 <= e < 1).
 
-    The true anomaly is in [0, 2 pi).
+    M is wrapped to [-pi, pi); the returned E lies in the same revolution as the wrapped M.
     """
+    m = (mean_anomaly + math.pi) % (2.0 * math.pi) - math.pi
+    # Starting guess of Danby (1987): converges for every M at e < 1.
+    return _kepler_newton(m, e, m + 0.85 * e * (1.0 if math.sin(m) >= 0.0 else -1.0))
+
+
+@nb.njit(cache=True)
+def state_from_anomaly_kernel(orb: NDArray, big_e: float, out: NDArray) -> float:
+    """Write the state [r; v] at eccentric anomaly E into ``out[0:6]``; return nu in [0, 2 pi)."""
     a = orb[P_A]
     e = orb[P_E]
-    big_e = eccentric_anomaly_kernel(orb[P_M0] + orb[P_N] * t, e)
     ce = math.cos(big_e)
     se = math.sin(big_e)
     s1e = math.sqrt(1.0 - e * e)
@@ -66,11 +66,32 @@ def state_kernel(orb: NDArray, t: float, out: NDArray) -> float:
         q = orb[8 + i]
         out[i] = x * p + y * q
         out[3 + i] = vx * p + vy * q
-    nu = 2.0 * math.atan2(math.sqrt(1.0 + e) * math.sin(0.5 * big_e),
-                          math.sqrt(1.0 - e) * math.cos(0.5 * big_e))
+    nu = math.atan2(y, x)     # the true anomaly is the polar angle of the perifocal position
     if nu < 0.0:
         nu += 2.0 * math.pi
     return nu
+
+
+@nb.njit(cache=True)
+def state_kernel(orb: NDArray, t: float, out: NDArray) -> float:
+    """Write the state [r; v] at time t (s since epoch) into ``out[0:6]``; return the true anomaly.
+
+    The true anomaly is in [0, 2 pi).
+    """
+    return state_from_anomaly_kernel(orb, eccentric_anomaly_kernel(orb[P_M0] + orb[P_N] * t, orb[P_E]), out)
+
+
+@nb.njit(cache=True)
+def state_warm_kernel(orb: NDArray, t: float, e_guess: float, out: NDArray) -> tuple[float, float]:
+    """:func:`state_kernel` with Newton started from ``e_guess`` (e.g. the previous sample's E
+    advanced by n dt / (1 - e cos E)); returns (nu, E). Sequential predictions use it: 1-2 Newton
+    iterations instead of 4-6."""
+    e = orb[P_E]
+    m = (orb[P_M0] + orb[P_N] * t + math.pi) % (2.0 * math.pi) - math.pi
+    two_pi = 2.0 * math.pi
+    guess = e_guess - two_pi * math.floor((e_guess - m) / two_pi + 0.5)  # same revolution as m
+    big_e = _kepler_newton(m, e, guess)
+    return state_from_anomaly_kernel(orb, big_e, out), big_e
 
 
 @nb.njit(cache=True)

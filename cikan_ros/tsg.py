@@ -27,7 +27,8 @@ from .constraints import (C_UMAX, constraint_params, h1_line_of_sight_kernel, h2
 from .control import ftre_control_kernel, gain_table
 from .dynamics import rk4_kernel
 from .errors import NoFeasibleShiftError, StateError
-from .orbit import P_MU, KeplerOrbit, check_states, state_kernel
+from .orbit import (P_E, P_M0, P_MU, P_N, KeplerOrbit, check_states, eccentric_anomaly_kernel,
+                    state_from_anomaly_kernel, state_kernel, state_warm_kernel)
 from .units import ns_to_seconds
 from .units import seconds_to_ns as to_ns
 
@@ -42,28 +43,47 @@ T_SAMPLE, T_NSAMPLES, T_SUBSTEPS, T_TERM_POS, T_TERM_VEL = range(5)
 
 @nb.njit(cache=True)
 def verify_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray,
-                  x0: NDArray, t_k: float, tau: float) -> bool:
-    """Verify(x0, t_k, tau) with packed orbit/gains/constraint/prediction parameters."""
+                  x0: NDArray, t_k: float, tau: float, chief: NDArray, filled: NDArray) -> bool:
+    """Verify(x0, t_k, tau) with packed orbit/gains/constraint/prediction parameters.
+
+    ``chief`` (N_p, 7) caches the chief states x_c(t_k + j T_s) and their eccentric anomalies,
+    which do not depend on tau: rows below ``filled[0]`` are valid and are reused by every Verify
+    of one update (allocate them with :func:`chief_cache`).
+    """
     ts = tp[T_SAMPLE]
     n = int(tp[T_NSAMPLES])
     sub = int(tp[T_SUBSTEPS])
     tpos2 = tp[T_TERM_POS] ** 2
     tvel2 = tp[T_TERM_VEL] ** 2
     mu = orb[P_MU]
+    e = orb[P_E]
+    dm = orb[P_N] * ts  # mean-anomaly advance per sample
     u_max = cp[C_UMAX]
     x = x0.copy()
-    xc = np.empty(6)
     xv = np.empty(6)
     u = np.empty(3)
     kb = np.empty((3, 6))
+    ev = 0.0
     for j in range(n):
         t = t_k + j * ts
-        state_kernel(orb, t, xc)
+        if j >= filled[0]:  # rows fill in order: j == filled[0]
+            if j == 0:
+                chief[0, 6] = eccentric_anomaly_kernel(orb[P_M0] + orb[P_N] * t, e)
+                state_from_anomaly_kernel(orb, chief[0, 6], chief[0])
+            else:
+                ep = chief[j - 1, 6]
+                _, chief[j, 6] = state_warm_kernel(orb, t, ep + dm / (1.0 - e * math.cos(ep)), chief[j])
+            filled[0] = j + 1
+        xc = chief[j]
         if h1_line_of_sight_kernel(x, xc, cp) > 0.0:
             return False
         if h3_approach_velocity_kernel(x, xc, cp) > 0.0:
             return False
-        nu_v = state_kernel(orb, t + tau, xv)
+        if j == 0:
+            ev = eccentric_anomaly_kernel(orb[P_M0] + orb[P_N] * (t + tau), e)
+            nu_v = state_from_anomaly_kernel(orb, ev, xv)
+        else:
+            nu_v, ev = state_warm_kernel(orb, t + tau, ev + dm / (1.0 - e * math.cos(ev)), xv)
         dp2 = 0.0
         dv2 = 0.0
         for i in range(3):
@@ -79,9 +99,19 @@ def verify_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray,
     return False
 
 
+class ChiefCache:
+    """Chief states x_c(t_k + j T_s) along the horizon from one update time t_k, filled lazily by
+    Verify and shared by all the Verify calls of that update (they do not depend on tau)."""
+
+    def __init__(self, n_samples: int, t: float) -> None:
+        self.t = t
+        self.rows = np.empty((n_samples, 7))          # state (6) and eccentric anomaly
+        self.filled = np.zeros(1, dtype=np.int64)     # rows [0, filled) are valid
+
+
 @nb.njit(cache=True)
 def bisect_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, x0: NDArray, t_k: float,
-                  lo_ns: int, hi_ns: int, tol_ns: int) -> tuple[int, int, int]:
+                  lo_ns: int, hi_ns: int, tol_ns: int, chief: NDArray, filled: NDArray) -> tuple[int, int, int]:
     """Bisection on [lo, hi] (integer ns) with lo feasible (not re-verified) and hi infeasible.
 
     Returns (lo, hi, Verify calls) at the end: the answer lo is feasible and within ``tol_ns`` of
@@ -93,7 +123,7 @@ def bisect_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, x0: ND
     while hi_ns - lo_ns > tol_ns:
         mid = (lo_ns + hi_ns) // 2
         calls += 1
-        if verify_kernel(orb, table, cp, tp, x0, t_k, mid / 1e9):
+        if verify_kernel(orb, table, cp, tp, x0, t_k, mid / 1e9, chief, filled):
             lo_ns = mid
         else:
             hi_ns = mid
@@ -102,17 +132,19 @@ def bisect_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, x0: ND
 
 @nb.njit(cache=True)
 def conventional_update_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, x0: NDArray,
-                               t_k: float, tau_prev_ns: int, tol_ns: int) -> tuple[int, int]:
+                               t_k: float, tau_prev_ns: int, tol_ns: int, chief: NDArray,
+                               filled: NDArray) -> tuple[int, int]:
     """pi* over [tau_prev, 0] (tau_prev < 0, ns): zero test first, then bisection. (tau_ns, calls)."""
-    if verify_kernel(orb, table, cp, tp, x0, t_k, 0.0):
+    if verify_kernel(orb, table, cp, tp, x0, t_k, 0.0, chief, filled):
         return 0, 1
-    tau, _, calls = bisect_kernel(orb, table, cp, tp, x0, t_k, tau_prev_ns, 0, tol_ns)
+    tau, _, calls = bisect_kernel(orb, table, cp, tp, x0, t_k, tau_prev_ns, 0, tol_ns, chief, filled)
     return tau, calls + 1
 
 
 @nb.njit(cache=True)
 def initial_search_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, x0: NDArray,
-                          t0: float, window_ns: int, grid_ns: int, tol_ns: int) -> tuple[int, int, bool]:
+                          t0: float, window_ns: int, grid_ns: int, tol_ns: int, chief: NDArray,
+                          filled: NDArray) -> tuple[int, int, bool]:
     """First-instant search (SPEC §5), times in integer ns. Returns (tau_ns, Verify calls, found).
 
     tau_near = the grid point of [-window, 0] nearest to the deputy's position; walk the grid from
@@ -131,10 +163,10 @@ def initial_search_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray
             best = m
     calls = 1
     m = best
-    if verify_kernel(orb, table, cp, tp, x0, t0, -m * grid_ns / 1e9):
+    if verify_kernel(orb, table, cp, tp, x0, t0, -m * grid_ns / 1e9, chief, filled):
         while m > 0:  # walk toward 0 while feasible
             calls += 1
-            if not verify_kernel(orb, table, cp, tp, x0, t0, -(m - 1) * grid_ns / 1e9):
+            if not verify_kernel(orb, table, cp, tp, x0, t0, -(m - 1) * grid_ns / 1e9, chief, filled):
                 break
             m -= 1
         if m == 0:
@@ -144,12 +176,13 @@ def initial_search_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray
         while m < n_grid:  # walk away from 0 until feasible
             m += 1
             calls += 1
-            if verify_kernel(orb, table, cp, tp, x0, t0, -m * grid_ns / 1e9):
+            if verify_kernel(orb, table, cp, tp, x0, t0, -m * grid_ns / 1e9, chief, filled):
                 found = True
                 break
         if not found:
             return 0, calls, False
-    tau, _, c = bisect_kernel(orb, table, cp, tp, x0, t0, -m * grid_ns, -(m - 1) * grid_ns, tol_ns)
+    tau, _, c = bisect_kernel(orb, table, cp, tp, x0, t0, -m * grid_ns, -(m - 1) * grid_ns, tol_ns,
+                             chief, filled)
     return tau, calls + c, True
 
 
@@ -201,28 +234,46 @@ class Predictor:
             raise StateError(f"time shift {name} must be finite and <= 0 s, got {tau!r}")
         return float(tau)
 
-    def verify(self, x_d: ArrayLike, t: float, tau: float) -> bool:
-        """Verify(x_d, t, tau): does tracking x_c(. + tau) from x_d at t stay feasible to the terminal set?"""
-        x, t = self._state(x_d, t)
-        return bool(verify_kernel(self.orbit.params, self.gains, self.cparams, self.tparams, x, t,
-                                  self._shift(tau, "tau")))
+    def cache(self, t: float) -> ChiefCache:
+        """A chief-state cache for several Verify/bisect calls at the same update time t."""
+        return ChiefCache(self.n_samples, float(t))
 
-    def bisect(self, x_d: ArrayLike, t: float, lo: float, hi: float) -> tuple[float, int]:
+    def _cache(self, t: float, cache: ChiefCache | None) -> ChiefCache:
+        if cache is None:
+            return self.cache(t)
+        if cache.t != t:
+            raise ValueError(f"chief cache was made for t = {cache.t}, used at t = {t}")
+        return cache
+
+    def verify(self, x_d: ArrayLike, t: float, tau: float, cache: ChiefCache | None = None) -> bool:
+        """Verify(x_d, t, tau): does tracking x_c(. + tau) from x_d at t stay feasible to the terminal set?
+
+        Pass the same ``cache`` (from :meth:`cache`) to several calls at one t to reuse chief states.
+        """
+        x, t = self._state(x_d, t)
+        c = self._cache(t, cache)
+        return bool(verify_kernel(self.orbit.params, self.gains, self.cparams, self.tparams, x, t,
+                                  self._shift(tau, "tau"), c.rows, c.filled))
+
+    def bisect(self, x_d: ArrayLike, t: float, lo: float, hi: float,
+               cache: ChiefCache | None = None) -> tuple[float, int]:
         """Bisection between a feasible ``lo`` (not re-verified) and an infeasible ``hi`` (s).
 
         Returns (tau, Verify calls): tau is feasible and within the tolerance of an infeasible shift.
         """
-        lo_s, _, calls = self.bisect_bracket(x_d, t, lo, hi)
+        lo_s, _, calls = self.bisect_bracket(x_d, t, lo, hi, cache)
         return lo_s, calls
 
-    def bisect_bracket(self, x_d: ArrayLike, t: float, lo: float, hi: float) -> tuple[float, float, int]:
+    def bisect_bracket(self, x_d: ArrayLike, t: float, lo: float, hi: float,
+                       cache: ChiefCache | None = None) -> tuple[float, float, int]:
         """Like :meth:`bisect`, returning the final bracket (feasible lo, infeasible hi, calls)."""
         x, t = self._state(x_d, t)
         lo, hi = self._shift(lo, "lo"), self._shift(hi, "hi")
         if lo > hi:
             raise StateError(f"bisection bracket is empty: lo = {lo} > hi = {hi}")
+        c = self._cache(t, cache)
         lo_ns, hi_ns, calls = bisect_kernel(self.orbit.params, self.gains, self.cparams, self.tparams,
-                                            x, t, to_ns(lo), to_ns(hi), self.tol_ns)
+                                            x, t, to_ns(lo), to_ns(hi), self.tol_ns, c.rows, c.filled)
         return ns_to_seconds(lo_ns), ns_to_seconds(hi_ns), int(calls)
 
     def optimal_shift(self, x_d: ArrayLike, t: float, tau_prev: float) -> tuple[float, int]:
@@ -231,17 +282,20 @@ class Predictor:
         tau_prev = self._shift(tau_prev, "tau_prev")
         if tau_prev == 0.0:
             return 0.0, 0
+        c = self.cache(t)
         tau, calls = conventional_update_kernel(self.orbit.params, self.gains, self.cparams,
-                                                self.tparams, x, t, to_ns(tau_prev), self.tol_ns)
+                                                self.tparams, x, t, to_ns(tau_prev), self.tol_ns,
+                                                c.rows, c.filled)
         return ns_to_seconds(tau), int(calls)
 
     def initial_shift(self, x_d: ArrayLike, t: float) -> tuple[float, int]:
         """First-instant search over [-window, 0]; raises NoFeasibleShiftError if none is feasible."""
         x, t = self._state(x_d, t)
         cfg = self.config.tsg
+        c = self.cache(t)
         tau, calls, found = initial_search_kernel(self.orbit.params, self.gains, self.cparams,
                                                   self.tparams, x, t, to_ns(cfg.initial_window_s),
-                                                  to_ns(cfg.initial_grid_s), self.tol_ns)
+                                                  to_ns(cfg.initial_grid_s), self.tol_ns, c.rows, c.filled)
         if not found:
             raise NoFeasibleShiftError(
                 f"no feasible time shift in [-{cfg.initial_window_s:g}, 0] s for this initial "
