@@ -233,8 +233,9 @@ class NumpyNet:
             else:
                 d["weight"], d["bias"] = t[pre + "weight"], t[pre + "bias"]
             self._layers.append(d)
-        self._knots = arch.knots()
-        self._centres = arch.centres()
+        # The torch modules hold grids as float32 buffers: use the same values here.
+        self._knots = arch.knots().astype(np.float32).astype(np.float64)
+        self._centres = arch.centres().astype(np.float32).astype(np.float64)
         self._h = arch.basis_width
 
     def normalise(self, feats: NDArray) -> NDArray:

@@ -29,7 +29,8 @@ class UniformBSplineBasis(nn.Module):
         super().__init__()
         self.grid, self.order, self.grid_range = grid, order, grid_range
         self.register_buffer("knots", torch.tensor(knots, dtype=torch.float32), persistent=False)
-        self.step = float(knots[1] - knots[0])
+        k32 = np.asarray(knots, dtype=np.float32).astype(np.float64)
+        self.step = float(k32[1] - k32[0])   # as the numpy path computes it from the same buffer
 
     def cardinal_cubic(self, x: Tensor) -> Tensor:
         """(B, I) -> (B, I, G+3): N((x - t_m)/Δ) with s = |u - 2|, N = (relu(2-s)³ - 4 relu(1-s)³)/6."""
