@@ -4,8 +4,6 @@ save -> load identical outputs, clear errors on missing/truncated/corrupt/mismat
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -157,11 +155,23 @@ def test_missing_and_corrupt_cards_are_clear_errors(tmp_path: Path) -> None:
         load_model(d)
 
 
-def test_cli_reports_a_bad_model_without_traceback(tmp_path: Path) -> None:
+def test_governor_factory_reports_a_bad_model(tmp_path: Path, cfg, predictor) -> None:
+    from cikan_ros.governor import make_governor
+
     d = _saved(tmp_path)
     (d / WEIGHTS).write_bytes(b"\x00" * 10)
-    proc = subprocess.run([sys.executable, "-m", "cikan_ros.cli", "mission", "--offline",
-                           "--governor", str(d)], capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 2
-    assert "Traceback" not in proc.stderr
-    assert "truncated, corrupt or replaced" in proc.stderr
+    with pytest.raises(ModelFileError, match="truncated, corrupt or replaced"):
+        make_governor(str(d), cfg, predictor)
+    with pytest.raises(ModelFileError, match="model directory not found"):
+        make_governor(str(tmp_path / "absent"), cfg, predictor)
+
+
+def test_cli_reports_a_bad_file_without_traceback(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    from cikan_ros.cli import main
+
+    bad = tmp_path / "labels.parquet"
+    bad.write_bytes(b"PAR1 not really")
+    assert main(["train", "--model", "cikan", "--data", str(bad), "--out", str(tmp_path / "m")]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    assert err.startswith("cikan train: error: dataset") and "not a readable Parquet file" in err

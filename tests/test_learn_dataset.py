@@ -1,0 +1,67 @@
+"""The label generator: labels equal pi* at the recorded states, splits by mission, determinism,
+and the same labels from a real Dask cluster (distributed.LocalCluster on loopback)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from cikan_ros.learn.dataset import (COLUMNS, XC_COLS, XD_COLS, DatasetSpec, generate, read_parquet,
+                                     write_parquet)
+
+SPEC = DatasetSpec(seed=11, val_fraction=0.3, test_fraction=0.3)
+N = 240
+
+
+@pytest.fixture(scope="module")
+def local(cfg, predictor):
+    from cikan_ros.learn import dataset
+
+    # Reuse the session's predictor (its gain table) for this configuration in this process.
+    dataset._PREDICTORS[json.dumps(cfg.flat(), sort_keys=True)] = predictor
+    return generate(cfg, N, SPEC, workers=1, progress=False)
+
+
+def test_columns_labels_and_splits(local) -> None:
+    df, meta = local
+    assert list(df.columns) == list(COLUMNS)
+    assert len(df) == N == meta["labels"]
+    assert (df["tau_star_s"] < 0).all() and (df["tau_prev_s"] < 0).all()
+    assert (df["tau_star_s"] >= df["tau_prev_s"]).all()   # pi* lies in [tau_prev, 0]
+    assert set(df["split"]) == {"train", "val", "test"}
+    missions = {s: set(df.loc[df["split"] == s, "mission"]) for s in ("train", "val", "test")}
+    assert not (missions["train"] & missions["val"]) and not (missions["train"] & missions["test"]) \
+        and not (missions["val"] & missions["test"])
+    assert meta["split_labels"] == {s: int((df["split"] == s).sum()) for s in ("train", "val", "test")}
+
+
+def test_labels_are_pi_star_at_the_recorded_states(local, predictor) -> None:
+    df, _ = local
+    rows = df.iloc[np.linspace(0, len(df) - 1, 12).astype(int)]
+    for _, r in rows.iterrows():
+        x_d = r[list(XD_COLS)].to_numpy(dtype=float)
+        tau, _ = predictor.optimal_shift(x_d, float(r["t_s"]), float(r["tau_prev_s"]))
+        assert tau == r["tau_star_s"]
+        assert predictor.verify(x_d, float(r["t_s"]), tau)
+
+
+def test_parquet_round_trip(local, tmp_path) -> None:
+    df, meta = local
+    path = write_parquet(df, meta, tmp_path / "d.parquet")
+    back, meta2 = read_parquet(path)
+    pd.testing.assert_frame_equal(back, df)
+    assert meta2["seed"] == SPEC.seed and meta2["labels"] == N
+    assert json.loads(json.dumps(meta2["config"])) == meta["config"]
+
+
+def test_dask_cluster_gives_the_same_labels(cfg, local) -> None:
+    from distributed import LocalCluster
+
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, host="127.0.0.1",
+                      dashboard_address=None) as cluster:
+        df, meta = generate(cfg, N, SPEC, dask_address=cluster.scheduler_address, progress=False)
+    assert str(meta["workers"]).startswith("dask:")
+    pd.testing.assert_frame_equal(df, local[0])
