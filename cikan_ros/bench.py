@@ -125,6 +125,16 @@ def conventional_section(cfg: Config, states: BenchStates, repeats: int) -> dict
 SECTIONS: list[Callable[[Config, BenchStates, int], dict[str, Any]]] = [conventional_section]
 
 
+def learned_section(cfg: Config, states: BenchStates, repeats: int) -> dict[str, Any]:
+    """Learned governors of ``models/`` and the dataset rate (``cikan_ros.learn.bench``)."""
+    from .learn.bench import learned_section as section
+
+    return section(cfg, states, repeats)
+
+
+SECTIONS.append(learned_section)
+
+
 def run_bench(cfg: Config, n_missions: int = 6, repeats: int = 3) -> dict[str, Any]:
     """All benchmark figures in one run (ratios are comparable only within one run)."""
     states = collect_states(cfg, n_missions)
