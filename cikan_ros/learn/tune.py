@@ -65,7 +65,7 @@ def run_tune(family: str, data: Data, trials: int, storage: str = DEFAULT_STORAG
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     name = study_name or study_name_for(family)
     study = optuna.create_study(
-        study_name=name, storage=storage, direction="minimize", load_if_exists=True,
+        study_name=name, storage=open_storage(storage), direction="minimize", load_if_exists=True,
         sampler=optuna.samplers.TPESampler(seed=seed, n_startup_trials=4, multivariate=True),
         pruner=optuna.pruners.MedianPruner(n_startup_trials=2, n_warmup_steps=2))
 
@@ -88,6 +88,26 @@ def run_tune(family: str, data: Data, trials: int, storage: str = DEFAULT_STORAG
 
     study.optimize(objective, n_trials=trials, timeout=timeout_s, gc_after_trial=True)
     return study_summary(study)
+
+
+def open_storage(url: str, attempts: int = 6) -> Any:
+    """An Optuna RDB storage. SQLite waits up to 60 s on a lock; creating the schema of a new
+    database from several processes at once can race ("table ... already exists"): retried."""
+    import random
+    import time
+
+    import optuna
+    import sqlalchemy.exc
+
+    kwargs = {"connect_args": {"timeout": 60}} if url.startswith("sqlite") else {}
+    for attempt in range(attempts):
+        try:
+            return optuna.storages.RDBStorage(url, engine_kwargs=kwargs)
+        except sqlalchemy.exc.OperationalError:
+            if attempt == attempts - 1:
+                raise
+            time.sleep(0.2 + random.random())
+    raise AssertionError("unreachable")  # pragma: no cover
 
 
 def data_features(data: Data) -> str:
