@@ -1,0 +1,175 @@
+"""Table 2 of the paper from a Monte Carlo campaign directory (``cikan montecarlo --out DIR``).
+
+Per governor: trainable parameters and the paper's complexity n^2 l (G+3) (from the model card),
+train/val loss (card, the paper's definition), RMSE of tau against pi* solved at the states the
+learned governor visited, update time mean / worst over all updates of all runs (the paper's
+definition) and over active updates (tau_prev < 0), speed-up against the conventional TSG of the
+same campaign, dV mean, success count, violations and the network acceptance rate.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..config import config_from_flat
+from ..governor import PATH_INITIAL, PATH_NN, PATH_ZERO
+from ..montecarlo import load_run_arrays, summarise
+from ..tsg import Predictor
+from ..units import through_si
+
+#: The paper's Table 2 (SPEC §9): complexity, L_train, L_val (x1e-3), RMSE s, time mean/worst s, dV km/s.
+PAPER = {
+    "conventional": ("-", None, None, None, 0.0871, 0.8546, 3.8741),
+    "cikan": ("1,638,400", 1.3218, 1.2615, 0.9652, 0.0329, 0.5590, 3.4965),
+    "grbf": ("122,880", 1.4758, 1.1540, 0.8220, 0.0451, 1.0339, 3.5489),
+    "rswaf": ("491,520", 1.5729, 1.2610, 1.2906, 0.0379, 0.5435, 3.4807),
+    "relu": ("20,971,520", 2.7907, 1.6458, 0.7483, 0.0543, 1.3284, 3.6593),
+    "gelu": ("5,242,880", 2.8983, 1.8538, 1.1202, 0.0299, 0.5292, 3.4549),
+}
+PAPER_NAMES = {"conventional": "TSG", "cikan": "CIKAN (128,5,17)", "grbf": "GRBF (32,6,17)",
+               "rswaf": "RSWAF (64,6,17)", "relu": "CINN-ReLU (2048,5)", "gelu": "CINN-GELU (1024,5)"}
+
+COLUMNS = ("model", "architecture", "trainable_params", "paper_complexity", "loss_train_1e3",
+           "loss_val_1e3", "rmse_tau_s", "rmse_tau_active_s", "update_ms_mean", "update_ms_max",
+           "active_update_ms_mean", "active_update_ms_max", "speedup_mean", "speedup_worst",
+           "delta_v_kmps_mean", "successes", "runs", "violations", "nn_accept_rate")
+
+
+def _runs(gov_dir: Path) -> list[tuple[dict[str, Any], dict[str, Any], Path]]:
+    out = []
+    for js in sorted(gov_dir.glob("seed_*.json")):
+        npz = js.with_suffix(".npz")
+        if npz.exists():
+            stored = json.loads(js.read_text())
+            out.append((stored["metrics"], stored["config"], npz))
+    return out
+
+
+def rmse_against_optimal(runs: list[tuple[dict[str, Any], dict[str, Any], Path]]) -> tuple[float, float, float]:
+    """(RMSE over all updates, RMSE over active updates, NN acceptance rate) of a learned governor.
+
+    pi* is the conventional TSG answer at the state the governor saw (through SI), from the same
+    tau_prev. The acceptance rate counts updates whose network proposal was returned (path "nn")
+    among the updates that consulted the network (every path but "zero").
+    """
+    pred: Predictor | None = None
+    err_all: list[float] = []
+    err_active: list[float] = []
+    consulted = accepted = 0
+    for _, flat, npz in runs:
+        if pred is None:
+            pred = Predictor.from_config(config_from_flat(flat))
+        a = load_run_arrays(npz)
+        tc = float(flat["control.period_s"])
+        for t_u, tau_u, path in zip(a["update_t"], a["update_tau"], a["update_path"]):
+            k = int(round(float(t_u) / tc))
+            tau_prev = float(a["tau"][k - 1])
+            if path not in (PATH_ZERO, PATH_INITIAL):
+                consulted += 1
+                accepted += path == PATH_NN
+            star = 0.0 if tau_prev == 0.0 else pred.optimal_shift(through_si(a["x_d"][k]), float(a["t"][k]), tau_prev)[0]
+            err_all.append(float(tau_u) - star)
+            if tau_prev < 0.0:
+                err_active.append(float(tau_u) - star)
+    rms = lambda e: float(math.sqrt(np.mean(np.square(e)))) if e else math.nan  # noqa: E731
+    return rms(err_all), rms(err_active), (accepted / consulted if consulted else math.nan)
+
+
+def _card(name: str) -> dict[str, Any] | None:
+    from ..learn.modelfile import MODELS_DIR
+
+    path = Path(name) if "/" in name else MODELS_DIR / name
+    card = path / "card.json" if path.is_dir() else path.with_name("card.json")
+    return json.loads(card.read_text()) if card.exists() else None
+
+
+def build_table(mc_dir: str | Path, with_rmse: bool = True) -> list[dict[str, Any]]:
+    """Rows of Table 2 for every governor directory in a campaign (conventional first)."""
+    mc = Path(mc_dir)
+    govs = sorted((d.name for d in mc.iterdir() if d.is_dir() and any(d.glob("seed_*.json"))),
+                  key=lambda g: (g != "conventional", list(PAPER).index(g) if g in PAPER else 99, g))
+    rows = []
+    conv: dict[str, Any] | None = None
+    for g in govs:
+        runs = _runs(mc / g)
+        s = summarise([m for m, _, _ in runs])
+        row: dict[str, Any] = {c: None for c in COLUMNS}
+        row.update(model=g, runs=s["runs"], successes=s["successes"], violations=s["violations"],
+                   delta_v_kmps_mean=s["delta_v_kmps_mean"], update_ms_mean=s["update_ms_mean"],
+                   update_ms_max=s["update_ms_max"], active_update_ms_mean=s["active_update_ms_mean"],
+                   active_update_ms_max=s["active_update_ms_max"])
+        if g == "conventional":
+            conv = s
+        else:
+            card = _card(g)
+            if card is not None:
+                arch = card.get("architecture", {})
+                row.update(architecture=_arch_label(arch),
+                           trainable_params=card["parameters"]["trainable"],
+                           paper_complexity=card["parameters"]["complexity_n2l_G3"],
+                           loss_train_1e3=1e3 * card["losses"]["train"]["loss"],
+                           loss_val_1e3=1e3 * card["losses"]["val"]["loss"])
+            if with_rmse:
+                row["rmse_tau_s"], row["rmse_tau_active_s"], row["nn_accept_rate"] = rmse_against_optimal(runs)
+        rows.append(row)
+    if conv is not None:
+        for row in rows:
+            if row["update_ms_mean"]:
+                row["speedup_mean"] = conv["update_ms_mean"] / row["update_ms_mean"]
+                row["speedup_worst"] = conv["update_ms_max"] / row["update_ms_max"]
+    return rows
+
+
+def _arch_label(arch: dict[str, Any]) -> str:
+    w, d, g = arch.get("width"), arch.get("layers"), arch.get("grid")
+    return f"({w},{d},{g})" if g and arch.get("family") not in ("relu", "gelu") else f"({w},{d})"
+
+
+def _fmt(v: Any, spec: str) -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "-"
+    return format(v, spec)
+
+
+def to_markdown(rows: list[dict[str, Any]]) -> str:
+    """Our Table 2 with the paper's row under each model."""
+    head = ("| model | params (trainable) | complexity n²ℓ(G+3) | L_train, L_val ×1e-3 | RMSE τ (s) all / active "
+            "| update ms mean / worst | active ms mean / worst | speed-up mean / worst | ΔV (km/s) "
+            "| success | violations | NN accept |")
+    lines = [head, "|" + "---|" * 12]
+    for r in rows:
+        g = r["model"]
+        lines.append(
+            f"| **{g}** {r['architecture'] or ''} | {_fmt(r['trainable_params'], ',')} "
+            f"| {_fmt(r['paper_complexity'], ',')} "
+            f"| {_fmt(r['loss_train_1e3'], '.4f')}, {_fmt(r['loss_val_1e3'], '.4f')} "
+            f"| {_fmt(r['rmse_tau_s'], '.4f')} / {_fmt(r['rmse_tau_active_s'], '.4f')} "
+            f"| {_fmt(r['update_ms_mean'], '.3f')} / {_fmt(r['update_ms_max'], '.2f')} "
+            f"| {_fmt(r['active_update_ms_mean'], '.3f')} / {_fmt(r['active_update_ms_max'], '.2f')} "
+            f"| {_fmt(r['speedup_mean'], '.2f')} / {_fmt(r['speedup_worst'], '.2f')} "
+            f"| {_fmt(r['delta_v_kmps_mean'], '.4f')} | {r['successes']}/{r['runs']} | {r['violations']} "
+            f"| {_fmt(r['nn_accept_rate'], '.3f')} |")
+        if g in PAPER:
+            cx, lt, lv, rmse, tm, tw, dv = PAPER[g]
+            lines.append(
+                f"| *paper: {PAPER_NAMES[g]}* | - | {cx} | {_fmt(lt, '.4f')}, {_fmt(lv, '.4f')} "
+                f"| {_fmt(rmse, '.4f')} | {tm * 1e3:.1f} / {tw * 1e3:.0f} | - "
+                f"| {_fmt(PAPER['conventional'][4] / tm, '.2f')} / {_fmt(PAPER['conventional'][5] / tw, '.2f')} "
+                f"| {dv:.4f} | 100/100 | 0 | - |")
+    return "\n".join(lines) + "\n"
+
+
+def to_csv(rows: list[dict[str, Any]]) -> str:
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=list(COLUMNS))
+    w.writeheader()
+    for r in rows:
+        w.writerow({c: r[c] for c in COLUMNS})
+    return buf.getvalue()
