@@ -18,6 +18,7 @@ from .errors import CikanError
 COMMAND_MODULES = (
     "cikan_ros.commands.mission",
     "cikan_ros.commands.montecarlo",
+    "cikan_ros.commands.report",
     "cikan_ros.commands.bench",
     "cikan_ros.commands.dataset",
     "cikan_ros.commands.train",

@@ -1,0 +1,27 @@
+"""``cikan report``: the paper's figures and a Markdown page from bags or a Monte Carlo directory."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("report", help="figures and a Markdown page from recorded runs",
+                       description="Draw the paper's Fig. 3a-e and Fig. 4 and write report.md from a "
+                                   "rosbag2 bag, a directory of bags, or a `cikan montecarlo` directory.")
+    p.add_argument("source", metavar="BAG|DIR", help="bag directory, directory of bags, or Monte Carlo --out")
+    p.add_argument("--out", required=True, metavar="DIR", help="where the PNG files and report.md go")
+    p.add_argument("--title", default=None, help="page title")
+    p.add_argument("--config", default=None, metavar="PATH",
+                   help="configuration of bags that do not carry their own (default: the shipped one)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..analysis.report import write_report
+    from ..config import load_config
+
+    cfg = load_config(args.config) if args.config else None
+    page = write_report(args.source, args.out, cfg, args.title)
+    print(f"report: {page}")
+    return 0
