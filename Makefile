@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 EXTRAS := ros,learn,report,dev
 
-.PHONY: install run test bench montecarlo clean
+.PHONY: install run test bench montecarlo results clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -24,7 +24,13 @@ bench: $(STAMP)
 	$(BIN)/cikan bench --json
 
 montecarlo: $(STAMP)
-	$(BIN)/cikan montecarlo --runs 100 --governor conventional --out runs/montecarlo
+	$(BIN)/cikan montecarlo --runs 100 --governor conventional --workers 2 --out runs/montecarlo
+
+# The results page: the paper's 100-run evaluation for all six governors, then figures and Table 2.
+results: $(STAMP)
+	$(BIN)/cikan montecarlo --runs 100 --governor all --workers 2 --out runs/paper
+	$(BIN)/cikan report runs/paper --out docs/results --notes docs/results_notes.md \
+		--title "Results: the paper's Table 2 and Figures 3-4 reproduced"
 
 clean:
 	rm -rf $(VENV) build *.egg-info

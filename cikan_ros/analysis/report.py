@@ -103,8 +103,11 @@ def _metrics_table(runs: list[RunData], metrics: list[dict[str, Any]]) -> str:
 
 
 def write_report(path: str | Path, out_dir: str | Path, cfg: Config | None = None,
-                 title: str | None = None) -> Path:
-    """Figures (PNG) and ``report.md`` for the runs at ``path``; returns the page's path."""
+                 title: str | None = None, notes: str | None = None) -> Path:
+    """Figures (PNG) and ``report.md`` for the runs at ``path``; returns the page's path.
+
+    ``notes`` (Markdown) is inserted after the tables, before the figures.
+    """
     from .table import build_table, to_csv, to_markdown
 
     kind, runs, metrics = load_runs(path, cfg)
@@ -135,6 +138,8 @@ def write_report(path: str | Path, out_dir: str | Path, cfg: Config | None = Non
     else:
         figs = all_figures(runs, out)
         lines += ["## Metrics", "", _metrics_table(runs, metrics), ""]
+    if notes:
+        lines += [notes.rstrip(), ""]
     (out / "metrics.json").write_text(json.dumps(metrics, indent=1))
     captions = {
         "fig3a_relative_vnb": "Fig. 3a: relative trajectories in the chief's VNB frame with the LoS cone",

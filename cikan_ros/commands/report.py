@@ -12,6 +12,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("source", metavar="BAG|DIR", help="bag directory, directory of bags, or Monte Carlo --out")
     p.add_argument("--out", required=True, metavar="DIR", help="where the PNG files and report.md go")
     p.add_argument("--title", default=None, help="page title")
+    p.add_argument("--notes", default=None, metavar="FILE",
+                   help="a Markdown file inserted after the tables (e.g. what differs from the paper and why)")
     p.add_argument("--config", default=None, metavar="PATH",
                    help="configuration of bags that do not carry their own (default: the shipped one)")
     p.set_defaults(func=run)
@@ -22,6 +24,16 @@ def run(args: argparse.Namespace) -> int:
     from ..config import load_config
 
     cfg = load_config(args.config) if args.config else None
-    page = write_report(args.source, args.out, cfg, args.title)
+    notes = None
+    if args.notes:
+        from pathlib import Path
+
+        from ..errors import CikanError
+
+        try:
+            notes = Path(args.notes).read_text()
+        except OSError as exc:
+            raise CikanError(f"cannot read --notes file {args.notes}: {exc.strerror}") from None
+    page = write_report(args.source, args.out, cfg, args.title, notes)
     print(f"report: {page}")
     return 0
