@@ -261,7 +261,7 @@ def train(arch: Arch, data: Data, cfg: TrainConfig, out: str | Path | None,
         "upper_bound": cfg.upper_bound or cfg.epochs,
         "epochs_run": st["epoch"], "best_epoch": st["best_epoch"], "stop_reason": stop_reason,
         "history": st["history"],
-        "cpu_budget": {"wall_s": round(st["wall_s"], 1), "max_minutes": cfg.max_minutes,
+        "cpu_budget": {"wall_s": round(st["wall_s"], 3), "max_minutes": cfg.max_minutes,
                        "torch_threads": cfg.threads, "cpu": _cpu_name(),
                        "cpus_on_machine": os.cpu_count()},
     }

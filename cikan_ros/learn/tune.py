@@ -92,7 +92,8 @@ def run_tune(family: str, data: Data, trials: int, storage: str = DEFAULT_STORAG
 
 def open_storage(url: str, attempts: int = 6) -> Any:
     """An Optuna RDB storage. SQLite waits up to 60 s on a lock; creating the schema of a new
-    database from several processes at once can race ("table ... already exists"): retried."""
+    database from several processes at once can race ("table ... already exists", a duplicate
+    alembic version row): retried."""
     import random
     import time
 
@@ -103,7 +104,7 @@ def open_storage(url: str, attempts: int = 6) -> Any:
     for attempt in range(attempts):
         try:
             return optuna.storages.RDBStorage(url, engine_kwargs=kwargs)
-        except sqlalchemy.exc.OperationalError:
+        except (sqlalchemy.exc.OperationalError, sqlalchemy.exc.IntegrityError):
             if attempt == attempts - 1:
                 raise
             time.sleep(0.2 + random.random())

@@ -1,0 +1,93 @@
+"""Training and tuning: resume continues exactly, early stopping, the card's contents, and two
+`cikan tune` processes sharing one new SQLite study."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from cikan_ros.learn.arch import Arch
+from cikan_ros.learn.dataset import DatasetSpec, generate, write_parquet
+from cikan_ros.learn.modelfile import load_model
+from cikan_ros.learn.train import TrainConfig, load_data, train
+
+
+@pytest.fixture(scope="module")
+def data_path(cfg, predictor, tmp_path_factory) -> Path:
+    from cikan_ros.learn import dataset
+
+    dataset._PREDICTORS[json.dumps(cfg.flat(), sort_keys=True)] = predictor
+    df, meta = generate(cfg, 300, DatasetSpec(seed=7, val_fraction=0.25, test_fraction=0.25),
+                        progress=False)
+    assert set(df["split"]) == {"train", "val", "test"}
+    return write_parquet(df, meta, tmp_path_factory.mktemp("data") / "labels.parquet")
+
+
+def test_resume_continues_exactly(data_path: Path, tmp_path: Path) -> None:
+    data = load_data(data_path)
+    arch = Arch("cikan", 6, 2, grid=4)
+    cfg = dict(epochs=4, batch=64, lr=3e-3, lr_inf=3e-5, patience=10, seed=2)
+    straight = train(arch, data, TrainConfig(**cfg), tmp_path / "a", tmp_path / "ck_a", progress=False)
+    train(arch, data, TrainConfig(**{**cfg, "max_minutes": 1e-9}), None, tmp_path / "ck_b",
+          progress=False)   # stops after one epoch (wall budget)
+    resumed = train(arch, data, TrainConfig(**cfg), tmp_path / "b", tmp_path / "ck_b", resume=True,
+                    progress=False)
+    assert resumed["training"]["epochs_run"] == 4
+    h_a = straight["training"]["history"]
+    h_b = resumed["training"]["history"]
+    assert [h["val_loss"] for h in h_a] == [h["val_loss"] for h in h_b]
+    for (k, v), (k2, v2) in zip(straight["net"].state_dict().items(), resumed["net"].state_dict().items()):
+        assert k == k2 and torch.equal(v, v2)
+    card = load_model(tmp_path / "b").card
+    for s in ("train", "val", "test"):
+        assert card["losses"][s]["loss"] > 0 and card["losses"][s]["labels"] > 0
+    assert card["dataset"]["labels"] == 300 and card["dataset"]["seed"] == 7
+    assert card["training"]["cpu_budget"]["wall_s"] > 0
+    assert card["versions"]["torch"] == torch.__version__
+    assert card["parameters"]["trainable"] == arch.n_params()
+
+
+def test_losses_in_the_card_are_the_papers_definition(data_path: Path, tmp_path: Path) -> None:
+    data = load_data(data_path)
+    res = train(Arch("relu", 16, 2), data, TrainConfig(epochs=2, batch=64, theta_c=2.5),
+                tmp_path / "m", None, progress=False)
+    m = load_model(tmp_path / "m")
+    from cikan_ros.learn.arch import NumpyNet
+
+    net = NumpyNet(m.arch, m.tensors)
+    s = data.splits["val"]
+    err = s.y - net.forward(net.normalise(s.feats))
+    ref = np.mean(err ** 2) + 2.5 * np.mean(np.maximum(err, 0) ** 2)
+    assert res["losses"]["val"]["loss"] == pytest.approx(ref, rel=1e-5)
+    assert m.card["losses"]["theta_c"] == 2.5
+
+
+def test_early_stopping(data_path: Path) -> None:
+    data = load_data(data_path)
+    res = train(Arch("relu", 8, 2), data, TrainConfig(epochs=50, batch=64, lr=1e-9, lr_inf=1e-10,
+                                                      patience=2), None, progress=False)
+    assert res["training"]["stop_reason"] == "early stopping"
+    assert res["training"]["epochs_run"] < 50
+
+
+def test_two_tune_processes_share_one_new_sqlite_study(data_path: Path, tmp_path: Path) -> None:
+    import optuna
+
+    url = f"sqlite:///{tmp_path / 'study.sqlite3'}"
+    cmd = [sys.executable, "-m", "cikan_ros.cli", "tune", "--model", "grbf", "--trials", "1",
+           "--storage", url, "--data", str(data_path), "--epochs", "2", "--max-train", "0", "--json"]
+    procs = [subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+             for _ in range(2)]
+    outs = [p.communicate(timeout=300) for p in procs]
+    for p, (out, err) in zip(procs, outs):
+        assert p.returncode == 0, err
+    study = optuna.load_study(study_name="cikan-tsg-grbf", storage=url)
+    assert len(study.trials) == 2
+    assert all(t.state.name in ("COMPLETE", "PRUNED") for t in study.trials)
+    assert len({t.number for t in study.trials}) == 2
