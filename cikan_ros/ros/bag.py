@@ -1,0 +1,271 @@
+"""rosbag2 bag directories (metadata.yaml version 9 + one MCAP file) written from raw CDR bytes.
+
+What rosbag2 itself writes and what independent readers (rosbags, mcap, Foxglove) expect:
+profile ``ros2``; one schema per type, encoding ``ros2msg``, text = the installed .msg file
+followed, for every type it depends on, by a line of 80 '=' and ``MSG: pkg/Type`` and that
+type's .msg text; message encoding ``cdr``; channel metadata ``offered_qos_profiles`` (the same
+YAML text as in metadata.yaml) and ``topic_type_hash`` (RIHS01 from the installed .json).
+
+Crash safety: messages go into MCAP chunks; :meth:`BagWriter.flush` closes the current chunk and
+writes it, its message indexes and a provisional end of file (DataEnd + a Footer without summary
++ magic) in ONE write at the logical end of the data; the next flush overwrites that trailer.
+metadata.yaml is rewritten atomically (temp file + rename) after each flush with the counts
+flushed so far. So after a SIGKILL the directory is a complete, readable bag up to the last
+flushed chunk, and a clean close writes the full summary.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import sys
+from pathlib import Path
+from typing import Any
+
+import yaml
+from mcap.writer import CompressionType, Writer
+
+#: What metadata.yaml calls the files' distribution.
+ROS_DISTRO = "jazzy"
+MAGIC = b"\x89MCAP0\r\n"
+#: DataEnd (crc 0) + Footer (no summary) + magic: a valid end of a file without summary.
+TRAILER = (b"\x0f" + (4).to_bytes(8, "little") + (0).to_bytes(4, "little")
+           + b"\x02" + (20).to_bytes(8, "little") + bytes(20) + MAGIC)
+_PRIMITIVES = {"bool", "byte", "char", "float32", "float64", "int8", "uint8", "int16", "uint16",
+               "int32", "uint32", "int64", "uint64", "string", "wstring"}
+
+
+def share_dirs() -> list[Path]:
+    """Where installed interface packages live: $AMENT_PREFIX_PATH entries, then this Python's prefix."""
+    prefixes = [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
+    return [Path(p) / "share" for p in prefixes + [sys.prefix]]
+
+
+def _msg_file(pkg: str, name: str, suffix: str) -> Path:
+    for share in share_dirs():
+        path = share / pkg / "msg" / f"{name}{suffix}"
+        if path.exists():
+            return path
+    raise FileNotFoundError(f"message definition {pkg}/msg/{name}{suffix} not found in "
+                            f"{[str(s) for s in share_dirs()]}")
+
+
+def _dependencies(pkg: str, text: str) -> list[tuple[str, str]]:
+    """(pkg, Type) of the non-primitive field types of a .msg text, in order of appearance."""
+    out: list[tuple[str, str]] = []
+    for line in text.splitlines():
+        line = line.split("#", 1)[0].strip()
+        if not line:
+            continue
+        ftype, _, rest = line.partition(" ")
+        if "=" in rest.split(" ", 1)[0] or re.match(r"^\s*[A-Z0-9_]+\s*=", rest):
+            continue  # a constant
+        base = re.sub(r"\[.*\]$", "", ftype)
+        base = re.sub(r"<=\d+$", "", base)
+        if base in _PRIMITIVES:
+            continue
+        if base == "Header":
+            out.append(("std_msgs", "Header"))
+        elif "/" in base:
+            parts = base.split("/")
+            out.append((parts[0], parts[-1]))
+        else:
+            out.append((pkg, base))
+    return out
+
+
+def schema_text(type_name: str) -> str:
+    """The ros2msg schema of ``pkg/msg/Type``: its .msg text, then each dependency once."""
+    pkg, _, name = type_name.split("/")
+    root = _msg_file(pkg, name, ".msg").read_text()
+    parts = [root.rstrip("\n")]
+    seen: set[tuple[str, str]] = set()
+    queue = _dependencies(pkg, root)
+    while queue:
+        dep = queue.pop(0)
+        if dep in seen:
+            continue
+        seen.add(dep)
+        text = _msg_file(dep[0], dep[1], ".msg").read_text()
+        parts.append("=" * 80 + f"\nMSG: {dep[0]}/{dep[1]}\n" + text.rstrip("\n"))
+        queue.extend(_dependencies(dep[0], text))
+    return "\n".join(parts) + "\n"
+
+
+def type_hash(type_name: str) -> str:
+    """RIHS01 type hash of ``pkg/msg/Type`` from the installed .json description."""
+    pkg, _, name = type_name.split("/")
+    data = json.loads(_msg_file(pkg, name, ".json").read_text())
+    for entry in data.get("type_hashes", []):
+        if entry.get("type_name") == type_name:
+            return str(entry["hash_string"])
+    raise ValueError(f"no type hash for {type_name} in its .json description")
+
+
+# -- QoS ----------------------------------------------------------------------------------------
+_INFINITE = {"sec": 2147483647, "nsec": 4294967295}
+
+
+def _duration(d: Any) -> dict[str, int]:
+    ns = int(d.nanoseconds)
+    if ns <= 0 or ns >= 2147483647 * 10**9:
+        return dict(_INFINITE) if ns != 0 else {"sec": 0, "nsec": 0}
+    sec, nsec = divmod(ns, 10**9)
+    return {"sec": sec, "nsec": nsec}
+
+
+def qos_dict(qos: Any) -> dict[str, Any]:
+    """rosbag2 (metadata version 9) form of an rclpy QoSProfile."""
+    def name(policy: Any) -> str:
+        return policy.name.lower()
+
+    return {"history": name(qos.history), "depth": int(qos.depth), "reliability": name(qos.reliability),
+            "durability": name(qos.durability), "deadline": _duration(qos.deadline),
+            "lifespan": _duration(qos.lifespan), "liveliness": name(qos.liveliness),
+            "liveliness_lease_duration": _duration(qos.liveliness_lease_duration),
+            "avoid_ros_namespace_conventions": bool(qos.avoid_ros_namespace_conventions)}
+
+
+def qos_text(profiles: list[dict[str, Any]]) -> str:
+    """The one YAML text of a list of QoS dicts used both in the channel and in metadata.yaml."""
+    return yaml.safe_dump(profiles, default_flow_style=False, sort_keys=False).strip() if profiles else ""
+
+
+# -- the file sink ------------------------------------------------------------------------------
+class _Sink:
+    """Unbuffered file the MCAP writer writes to; on flush, the pending bytes plus a provisional
+    trailer go to the file in one write at the logical end (overwriting the previous trailer)."""
+
+    def __init__(self, path: Path) -> None:
+        self.fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        self.pos = 0            # logical end of what the writer has written and we have stored
+        self.pending = bytearray()
+
+    def write(self, data: Any) -> int:
+        self.pending += data
+        return len(data)
+
+    def tell(self) -> int:
+        return self.pos + len(self.pending)
+
+    def commit(self, trailer: bool) -> None:
+        data = bytes(self.pending) + (TRAILER if trailer else b"")
+        done = 0
+        while done < len(data):
+            done += os.pwrite(self.fd, data[done:], self.pos + done)
+        self.pos += len(self.pending)
+        self.pending.clear()
+        if not trailer:
+            os.ftruncate(self.fd, self.pos)
+
+    def flush(self) -> None:  # the MCAP writer's stream.flush(): commit with a trailer
+        if self.fd >= 0:
+            self.commit(trailer=True)
+
+    def close(self) -> None:
+        if self.fd >= 0:
+            self.commit(trailer=False)
+            os.fsync(self.fd)
+            os.close(self.fd)
+            self.fd = -1
+
+
+class BagWriter:
+    """A rosbag2 MCAP bag directory written from raw CDR messages (see the module docstring)."""
+
+    def __init__(self, path: str | Path, chunk_bytes: int = 256 * 1024) -> None:
+        self.dir = Path(path)
+        if self.dir.exists() and any(self.dir.iterdir()):
+            raise FileExistsError(f"bag directory {self.dir} exists and is not empty")
+        self.dir.mkdir(parents=True, exist_ok=True)
+        self.file = self.dir / f"{self.dir.name}_0.mcap"
+        self.sink = _Sink(self.file)
+        # Chunks are closed by flush() (size or time), never by the MCAP writer itself.
+        self.writer = Writer(self.sink, chunk_size=1 << 62, compression=CompressionType.ZSTD)
+        self.writer.start(profile="ros2", library="cikan_ros recorder (mcap python)")
+        self.schemas: dict[str, int] = {}
+        self.channels: dict[str, int] = {}
+        self.topics: dict[str, dict[str, Any]] = {}
+        self.counts: dict[str, int] = {}
+        self.flushed: dict[str, int] = {}
+        self.times: list[int] = []   # [first, last] log time
+        self.flushed_times: list[int] = []
+        self.unflushed_bytes = 0
+        self.closed = False
+        self.write_metadata()
+
+    def add_topic(self, topic: str, type_name: str, qos_profiles: list[dict[str, Any]]) -> None:
+        """Register a topic (once) with the QoS profiles its publishers offer."""
+        if topic in self.channels:
+            return
+        if type_name not in self.schemas:
+            self.schemas[type_name] = self.writer.register_schema(
+                name=type_name, encoding="ros2msg", data=schema_text(type_name).encode())
+        thash = type_hash(type_name)
+        qtext = qos_text(qos_profiles)
+        self.channels[topic] = self.writer.register_channel(
+            topic=topic, message_encoding="cdr", schema_id=self.schemas[type_name],
+            metadata={"offered_qos_profiles": qtext, "topic_type_hash": thash})
+        self.topics[topic] = {"name": topic, "type": type_name, "serialization_format": "cdr",
+                              "offered_qos_profiles": qtext, "type_description_hash": thash}
+        self.counts[topic] = 0
+        self.flushed[topic] = 0
+
+    def write(self, topic: str, data: bytes, log_time_ns: int, publish_time_ns: int | None = None) -> None:
+        """Append one serialised message of a registered topic."""
+        self.writer.add_message(self.channels[topic], log_time=log_time_ns, data=bytes(data),
+                                publish_time=log_time_ns if publish_time_ns is None else publish_time_ns,
+                                sequence=self.counts[topic])
+        self.counts[topic] += 1
+        self.times = [min(self.times[0], log_time_ns), max(self.times[1], log_time_ns)] if self.times \
+            else [log_time_ns, log_time_ns]
+        self.unflushed_bytes += len(data)
+
+    def flush(self) -> None:
+        """Close the current chunk, store it with a provisional end of file, update metadata.yaml."""
+        if self.closed or self.unflushed_bytes == 0 and self.flushed == self.counts:
+            return
+        self.writer.flush()   # finalize chunk + sink.flush() (one write with the trailer)
+        self.flushed = dict(self.counts)
+        self.flushed_times = list(self.times)
+        self.unflushed_bytes = 0
+        self.write_metadata()
+
+    def close(self) -> None:
+        """Finish the MCAP file (summary, footer) and write the final metadata.yaml."""
+        if self.closed:
+            return
+        self.writer.finish()
+        self.sink.close()
+        self.closed = True
+        self.flushed = dict(self.counts)
+        self.flushed_times = list(self.times)
+        self.write_metadata()
+
+    def write_metadata(self) -> None:
+        """metadata.yaml (rosbag2_bagfile_information, version 9) for what is flushed, atomically."""
+        start, end = self.flushed_times if self.flushed_times else (0, 0)
+        total = sum(self.flushed.values())
+        info = {
+            "version": 9,
+            "storage_identifier": "mcap",
+            "duration": {"nanoseconds": end - start},
+            "starting_time": {"nanoseconds_since_epoch": start},
+            "message_count": total,
+            "topics_with_message_count": [
+                {"topic_metadata": {**meta, "offered_qos_profiles": yaml.safe_load(meta["offered_qos_profiles"])
+                                    if meta["offered_qos_profiles"] else []},
+                 "message_count": self.flushed[t]}
+                for t, meta in self.topics.items()],
+            "compression_format": "",
+            "compression_mode": "",
+            "relative_file_paths": [self.file.name],
+            "files": [{"path": self.file.name, "starting_time": {"nanoseconds_since_epoch": start},
+                       "duration": {"nanoseconds": end - start}, "message_count": total}],
+            "custom_data": {},
+            "ros_distro": ROS_DISTRO,
+        }
+        tmp = self.dir / "metadata.yaml.tmp"
+        tmp.write_text(yaml.safe_dump({"rosbag2_bagfile_information": info}, sort_keys=False))
+        os.replace(tmp, self.dir / "metadata.yaml")

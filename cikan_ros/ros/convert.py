@@ -1,0 +1,217 @@
+"""Message <-> domain conversions: the only place where ROS messages meet library values.
+
+Library side: km, km/s, km/s^2 in ECI, times as whole nanoseconds since the mission epoch or
+seconds (``ns / 1e9``). Message side (REP 103): m, m/s, m/s^2, frame ``eci``, stamps as absolute
+UTC ``builtin_interfaces/Time``. Receivers call :func:`cikan_ros.units.m_to_km` on what senders
+produced with :func:`cikan_ros.units.km_to_m`, exactly as the offline loop does through
+``through_si``, so both see bit-identical numbers.
+
+Decoders raise :class:`MessageError` (a :class:`StateError`) naming what is wrong with a message;
+nodes turn it into a diagnostic and reject the message.
+"""
+
+from __future__ import annotations
+
+import struct
+from typing import Any, Mapping
+
+import numpy as np
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import AccelStamped
+from nav_msgs.msg import Odometry
+from numpy.typing import ArrayLike, NDArray
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import TimeReference
+
+from ..errors import StateError
+from ..units import km_to_m, m_to_km, ns_to_seconds, seconds_to_ns
+
+#: Inertial frame of every pose, twist and acceleration in the graph.
+FRAME_ECI = "eci"
+NS_PER_S = 1_000_000_000
+
+
+class MessageError(StateError):
+    """A received message is non-finite, out of range or malformed."""
+
+
+# -- time ---------------------------------------------------------------------------------------
+def ns_to_time(ns: int) -> Time:
+    """Absolute nanoseconds since 1970 (UTC) -> builtin_interfaces/Time (exact)."""
+    sec, nsec = divmod(int(ns), NS_PER_S)
+    return Time(sec=sec, nanosec=nsec)
+
+
+def time_to_ns(stamp: Any) -> int:
+    """builtin_interfaces/Time -> absolute nanoseconds (exact integer)."""
+    return int(stamp.sec) * NS_PER_S + int(stamp.nanosec)
+
+
+def clock_msg(ns: int) -> Clock:
+    """rosgraph_msgs/Clock at absolute time ``ns``."""
+    return Clock(clock=ns_to_time(ns))
+
+
+class Timeline:
+    """Mission time: absolute stamps <-> library time t (s since the epoch) and step index k.
+
+    ``epoch_ns`` is the mission epoch (UTC, ns), ``period_ns`` the control period T_c.
+    """
+
+    def __init__(self, epoch_unix_s: float, period_s: float) -> None:
+        self.epoch_ns = seconds_to_ns(epoch_unix_s)
+        self.period_ns = seconds_to_ns(period_s)
+
+    def stamp_ns(self, k: int) -> int:
+        """Absolute stamp of control step k."""
+        return self.epoch_ns + k * self.period_ns
+
+    def seconds(self, stamp_ns: int) -> float:
+        """Library time t (s since epoch) of an absolute stamp: the same float the offline loop uses."""
+        return ns_to_seconds(stamp_ns - self.epoch_ns)
+
+    def step(self, stamp_ns: int) -> int:
+        """Control step index of a stamp; raises MessageError if the stamp is off the T_c grid."""
+        k, rem = divmod(stamp_ns - self.epoch_ns, self.period_ns)
+        if rem or k < 0:
+            raise MessageError(f"stamp {stamp_ns} ns is not a control step of this mission "
+                               f"(epoch {self.epoch_ns} ns, period {self.period_ns} ns)")
+        return int(k)
+
+
+# -- states -------------------------------------------------------------------------------------
+def _finite(values: NDArray, what: str) -> NDArray:
+    if not np.all(np.isfinite(values)):
+        raise MessageError(f"{what} has non-finite components: {values.tolist()}")
+    return values
+
+
+def odom_msg(x_km: ArrayLike, stamp_ns: int, child_frame: str) -> Odometry:
+    """nav_msgs/Odometry of an ECI state [r (km); v (km/s)]: position in m, velocity in m/s.
+
+    The orientation is the identity, so the child frame's axes are ECI's and the twist (expressed
+    in the child frame, as nav_msgs asks) is the ECI velocity.
+    """
+    x_m = km_to_m(x_km)
+    msg = Odometry()
+    msg.header.stamp = ns_to_time(stamp_ns)
+    msg.header.frame_id = FRAME_ECI
+    msg.child_frame_id = child_frame
+    p = msg.pose.pose.position
+    p.x, p.y, p.z = (float(v) for v in x_m[:3])
+    msg.pose.pose.orientation.w = 1.0
+    v = msg.twist.twist.linear
+    v.x, v.y, v.z = (float(w) for w in x_m[3:])
+    return msg
+
+
+def state_from_odom(msg: Odometry) -> NDArray:
+    """ECI state [r (km); v (km/s)] of an Odometry message; MessageError if non-finite or degenerate."""
+    if msg.header.frame_id != FRAME_ECI:
+        raise MessageError(f"odometry frame must be {FRAME_ECI!r}, got {msg.header.frame_id!r}")
+    p = msg.pose.pose.position
+    v = msg.twist.twist.linear
+    x = m_to_km(_finite(np.array([p.x, p.y, p.z, v.x, v.y, v.z]), "odometry"))
+    if np.linalg.norm(x[:3]) < 1.0:
+        raise MessageError(f"odometry position is within 1 km of Earth's centre: {x[:3].tolist()} km")
+    return x
+
+
+# -- commands -----------------------------------------------------------------------------------
+def accel_msg(u_kmps2: ArrayLike, stamp_ns: int) -> AccelStamped:
+    """geometry_msgs/AccelStamped (linear, m/s^2, ECI) of an acceleration in km/s^2."""
+    u = km_to_m(u_kmps2)
+    msg = AccelStamped()
+    msg.header.stamp = ns_to_time(stamp_ns)
+    msg.header.frame_id = FRAME_ECI
+    a = msg.accel.linear
+    a.x, a.y, a.z = (float(w) for w in u)
+    return msg
+
+
+def accel_from_msg(msg: AccelStamped, u_max_kmps2: float) -> NDArray:
+    """Commanded acceleration (km/s^2) of an AccelStamped; MessageError if non-finite, in another
+    frame, or above the thrust limit (beyond rounding)."""
+    if msg.header.frame_id != FRAME_ECI:
+        raise MessageError(f"acceleration frame must be {FRAME_ECI!r}, got {msg.header.frame_id!r}")
+    a = msg.accel.linear
+    u = m_to_km(_finite(np.array([a.x, a.y, a.z]), "acceleration command"))
+    if float(np.linalg.norm(u)) > u_max_kmps2 * (1.0 + 1e-9):
+        raise MessageError(f"acceleration command |u| = {np.linalg.norm(u) * 1e3:.6g} m/s^2 exceeds "
+                           f"the thrust limit {u_max_kmps2 * 1e3:g} m/s^2")
+    return u
+
+
+# -- time shift ---------------------------------------------------------------------------------
+def time_shift_msg(stamp_ns: int, tau_s: float, source: str) -> TimeReference:
+    """sensor_msgs/TimeReference: header.stamp = t_k, time_ref = t_k + tau, source = decision path.
+
+    tau must lie on the whole-nanosecond grid (every verified shift does), so the receiver's
+    ``ns_to_seconds(time_ref - stamp)`` is the same float.
+    """
+    tau_ns = seconds_to_ns(tau_s)
+    if ns_to_seconds(tau_ns) != tau_s:
+        raise MessageError(f"time shift {tau_s!r} s is not a whole number of nanoseconds")
+    msg = TimeReference()
+    msg.header.stamp = ns_to_time(stamp_ns)
+    msg.time_ref = ns_to_time(stamp_ns + tau_ns)
+    msg.source = source
+    return msg
+
+
+def shift_from_msg(msg: TimeReference) -> tuple[int, float, str]:
+    """(stamp ns, tau s, source) of a TimeReference; MessageError unless tau <= 0."""
+    stamp = time_to_ns(msg.header.stamp)
+    tau_ns = time_to_ns(msg.time_ref) - stamp
+    if tau_ns > 0:
+        raise MessageError(f"time shift must be <= 0, got {tau_ns} ns")
+    return stamp, ns_to_seconds(tau_ns), msg.source
+
+
+# -- diagnostics --------------------------------------------------------------------------------
+LEVELS = {"ok": DiagnosticStatus.OK, "warn": DiagnosticStatus.WARN,
+          "error": DiagnosticStatus.ERROR, "stale": DiagnosticStatus.STALE}
+
+
+def _text(value: Any) -> str:
+    """Diagnostic value text: floats as repr (round-trips exactly), sequences space-separated."""
+    if isinstance(value, (float, np.floating)):
+        return repr(float(value))
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return " ".join(_text(v) for v in value)
+    return str(value)
+
+
+def diagnostic(name: str, level: str, message: str, stamp_ns: int,
+               values: Mapping[str, Any] | None = None) -> DiagnosticArray:
+    """A DiagnosticArray with one status; values become KeyValue strings (floats exactly)."""
+    status = DiagnosticStatus(level=LEVELS[level], name=name, message=message, hardware_id="cikan_ros")
+    status.values = [KeyValue(key=k, value=_text(v)) for k, v in (values or {}).items()]
+    arr = DiagnosticArray()
+    arr.header.stamp = ns_to_time(stamp_ns)
+    arr.status = [status]
+    return arr
+
+
+def diagnostic_values(status: Any) -> dict[str, str]:
+    """KeyValue pairs of a DiagnosticStatus (any message object with ``values``) as a dict."""
+    return {kv.key: kv.value for kv in status.values}
+
+
+def floats(text: str) -> NDArray:
+    """Parse a space-separated float list written by :func:`diagnostic`."""
+    return np.array([float(w) for w in text.split()])
+
+
+# -- raw CDR ------------------------------------------------------------------------------------
+def cdr_stamp_ns(data: bytes) -> int:
+    """Stamp of a serialised message whose first field is a Time (a Header or rosgraph Clock).
+
+    CDR: 4-byte encapsulation header (byte 1 = 0x01 little-endian), then int32 sec, uint32 nanosec.
+    """
+    if len(data) < 12:
+        raise MessageError(f"serialised message of {len(data)} bytes is too short for a stamp")
+    fmt = "<iI" if data[1] & 1 else ">iI"
+    sec, nsec = struct.unpack_from(fmt, data, 4)
+    return sec * NS_PER_S + nsec

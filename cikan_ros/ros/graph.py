@@ -1,0 +1,300 @@
+"""What every node of the graph shares: topic names and QoS, parameters, the cached predictor,
+readiness, the executor and the Jazzy shutdown pattern.
+
+QoS, chosen on purpose:
+
+- States, time shifts, commands (``/chief/odom``, ``/deputy/odom``, ``/tsg/time_shift``,
+  ``/deputy/accel_cmd``): RELIABLE, KEEP_LAST 10, VOLATILE. Lockstep needs every message (a lost
+  one would stall a step until a deadline), and a late joiner must not act on old states, so no
+  durability. Depth 10 covers the one message in flight per step with room for bursts.
+- ``/clock``: RELIABLE, KEEP_LAST 10 offered; compatible with rclpy's own best-effort /clock
+  subscription and lets the recorder and replay keep every tick.
+- ``/diagnostics``: RELIABLE, KEEP_LAST 100: bursts of events (e.g. per-update records) must
+  reach the recorder; nothing acts on diagnostics, so no durability.
+- Recorder subscriptions: RELIABLE, KEEP_LAST 1000, VOLATILE: a deep queue so a slow disk never
+  drops a message (reliable KEEP_LAST does not throttle publishers).
+"""
+
+from __future__ import annotations
+
+import array
+import hashlib
+import math
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+import numpy as np
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from ..config import DEFAULT_CONFIG_PATH, Config, config_from_flat, load_config
+from ..control import gain_table
+from ..constraints import constraint_params
+from ..orbit import KeplerOrbit
+from ..tsg import Predictor
+
+# -- topics -------------------------------------------------------------------------------------
+CLOCK = "/clock"
+CHIEF_ODOM = "/chief/odom"
+DEPUTY_ODOM = "/deputy/odom"
+TIME_SHIFT = "/tsg/time_shift"
+ACCEL_CMD = "/deputy/accel_cmd"
+DIAGNOSTICS = "/diagnostics"
+
+#: Topic -> ROS type name of every topic of the graph.
+TOPIC_TYPES: dict[str, str] = {
+    CLOCK: "rosgraph_msgs/msg/Clock",
+    CHIEF_ODOM: "nav_msgs/msg/Odometry",
+    DEPUTY_ODOM: "nav_msgs/msg/Odometry",
+    TIME_SHIFT: "sensor_msgs/msg/TimeReference",
+    ACCEL_CMD: "geometry_msgs/msg/AccelStamped",
+    DIAGNOSTICS: "diagnostic_msgs/msg/DiagnosticArray",
+}
+
+#: Which nodes read a topic (the recorder reads all): what a publisher waits for before starting.
+#: /clock readers are not awaited: rclpy's use_sim_time subscription is an implementation detail.
+CONSUMERS: dict[str, tuple[str, ...]] = {
+    CLOCK: (),
+    CHIEF_ODOM: ("governor",),
+    DEPUTY_ODOM: ("governor", "controller"),
+    TIME_SHIFT: ("controller",),
+    ACCEL_CMD: ("sim",),
+    DIAGNOSTICS: (),
+}
+
+NODE_NAMES = ("sim", "governor", "controller", "recorder")
+
+QOS_STREAM = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.VOLATILE)
+QOS_DIAGNOSTICS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                             reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+QOS_RECORD = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                        reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+
+
+def qos_for(topic: str) -> QoSProfile:
+    """The QoS a node of the graph offers or requests on ``topic``."""
+    return QOS_DIAGNOSTICS if topic == DIAGNOSTICS else QOS_STREAM
+
+
+def message_class(type_name: str) -> type:
+    """The Python class of a ROS type name such as ``nav_msgs/msg/Odometry``."""
+    import importlib
+
+    pkg, kind, name = type_name.split("/")
+    return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
+
+
+def required_readers(topic: str, peers: Iterable[str]) -> int:
+    """How many readers ``topic`` has in a graph made of ``peers`` (node names)."""
+    peers = set(peers)
+    return sum(1 for n in CONSUMERS[topic] if n in peers) + (1 if "recorder" in peers else 0)
+
+
+# -- parameters ---------------------------------------------------------------------------------
+_COMMENT = re.compile(r"^(\s*)([A-Za-z_]\w*):\s*(.*?)\s*(?:#\s*(.*))?$")
+
+
+def parameter_descriptions(path: str | Path = DEFAULT_CONFIG_PATH) -> dict[str, str]:
+    """``{"group.key": comment}`` from the end-of-line comments of a params YAML file."""
+    out: dict[str, str] = {}
+    stack: list[tuple[int, str]] = []
+    try:
+        lines = Path(path).read_text().splitlines()
+    except OSError:
+        return out
+    for line in lines:
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        m = _COMMENT.match(line)
+        if not m:
+            continue
+        indent, key, value, comment = len(m.group(1)), m.group(2), m.group(3), m.group(4)
+        while stack and stack[-1][0] >= indent:
+            stack.pop()
+        if value == "":
+            stack.append((indent, key))
+            continue
+        groups = [k for _, k in stack if k not in ("ros__parameters",)]
+        name = ".".join(groups[-1:] + [key]) if groups else key
+        if comment:
+            out[name] = comment
+    return out
+
+
+def plain(value: Any) -> Any:
+    """A parameter value as plain Python (rclpy gives arrays as array.array)."""
+    if isinstance(value, (array.array, np.ndarray, tuple)):
+        return list(value)
+    return value
+
+
+def declare_config(node: Any, defaults: Config | None = None) -> Config:
+    """Declare every configuration value as a read-only parameter ``group.key`` with its
+    description and the shipped default, then build and validate the Config from the values
+    the node was started with (a params file or overrides). Raises ConfigError naming a bad value.
+    """
+    from rcl_interfaces.msg import ParameterDescriptor
+
+    defaults = defaults or load_config()
+    desc = parameter_descriptions()
+    flat = defaults.flat()
+    for name, value in flat.items():
+        node.declare_parameter(name, value, ParameterDescriptor(
+            description=desc.get(name, name), read_only=True, dynamic_typing=True))
+    return config_from_flat({name: plain(node.get_parameter(name).value) for name in flat})
+
+
+def declare(node: Any, name: str, default: Any, description: str, read_only: bool = True) -> Any:
+    """Declare one node parameter with a description; return its value."""
+    from rcl_interfaces.msg import ParameterDescriptor
+
+    node.declare_parameter(name, default, ParameterDescriptor(description=description,
+                                                              read_only=read_only))
+    return plain(node.get_parameter(name).value)
+
+
+def declare_graph(node: Any) -> tuple[list[str], float]:
+    """``graph.peers`` (nodes in this graph) and ``graph.startup_timeout_s``."""
+    peers = declare(node, "graph.peers", ["sim", "governor", "controller"],
+                    "nodes of this graph (sim, governor, controller, recorder): a node starts only "
+                    "when the readers of its topics among them are matched")
+    timeout = declare(node, "graph.startup_timeout_s", 60.0,
+                      "wall seconds to wait for the graph's readers before starting anyway")
+    return [str(p) for p in peers], float(timeout)
+
+
+# -- predictor with a disk cache of the gain table ---------------------------------------------
+def cache_dir() -> Path:
+    """Where gain tables are cached: $CIKAN_CACHE_DIR or ~/.cache/cikan_ros."""
+    env = os.environ.get("CIKAN_CACHE_DIR")
+    return Path(env) if env else Path.home() / ".cache" / "cikan_ros"
+
+
+def cached_predictor(cfg: Config) -> Predictor:
+    """``Predictor.from_config(cfg)`` with the FTRE gain table (hundreds of DAREs, seconds to
+    tens of seconds) loaded from a disk cache keyed by the orbit and controller configuration.
+
+    The launcher fills the cache once; every node then starts in well under a second. The
+    table is stored bit-exactly (.npy, float64), so the nodes compute what the offline loop does.
+    """
+    orbit = KeplerOrbit.from_config(cfg.orbit)
+    key = hashlib.sha256(repr((cfg.orbit, cfg.control)).encode()).hexdigest()[:24]
+    path = cache_dir() / f"gains-{key}.npy"
+    try:
+        table = np.load(path, allow_pickle=False)
+    except (OSError, ValueError):
+        table = np.array(gain_table(orbit, cfg.control))
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(f".{os.getpid()}.tmp")
+        with open(tmp, "wb") as f:
+            np.save(f, table, allow_pickle=False)
+        os.replace(tmp, path)
+    table.setflags(write=False)
+    horizon = cfg.tsg.horizon_s if cfg.tsg.horizon_s > 0 else orbit.period
+    # The packing below is Predictor.from_config's; tests check both give equal predictors.
+    tparams = np.array([cfg.tsg.sample_period_s, math.ceil(horizon / cfg.tsg.sample_period_s - 1e-9),
+                        cfg.tsg.rk4_substeps, cfg.tsg.terminal_pos_km, cfg.tsg.terminal_vel_kmps],
+                       dtype=float)
+    return Predictor(cfg, orbit, table, constraint_params(cfg.constraints, cfg.control.u_max_kmps2),
+                     tparams)
+
+
+# -- executor and process lifecycle -------------------------------------------------------------
+#: Executor of every node process, chosen by measurement: SingleThreadedExecutor. With the
+#: rclpy 7.1.6 wheels here, rclpy.experimental.EventsExecutor never fires timers (steady or ROS
+#: clock; a 20-ms timer did not tick in 3 s) and does not leave spin() on SIGINT, and every node
+#: needs timers (deadlines, readiness, flushes). ``CIKAN_ROS_EXECUTOR=events`` selects it anyway.
+EXECUTORS = ("single", "events")
+
+
+def make_executor(context: Any = None) -> Any:
+    """The process's one executor (see :data:`EXECUTORS`)."""
+    kind = os.environ.get("CIKAN_ROS_EXECUTOR", "single")
+    if kind not in EXECUTORS:
+        from ..errors import ConfigError
+
+        raise ConfigError(f"CIKAN_ROS_EXECUTOR must be one of {EXECUTORS}, got {kind!r}")
+    if kind == "events":
+        from rclpy.experimental import EventsExecutor
+
+        return EventsExecutor(context=context)
+    from rclpy.executors import SingleThreadedExecutor
+
+    return SingleThreadedExecutor(context=context)
+
+
+@dataclass
+class Readiness:
+    """Waits (on a steady timer, never blocking) until each publisher has its readers, then calls
+    ``on_ready`` once. Used by every node so the lockstep never starts with a reader missing."""
+
+    node: Any
+    waits: list[tuple[Any, int]]   # (publisher, readers required)
+    timeout_s: float
+    on_ready: Callable[[], None]
+
+    def start(self) -> None:
+        from rclpy.clock import Clock, ClockType
+
+        self._clock = Clock(clock_type=ClockType.STEADY_TIME)
+        self._t0 = self._clock.now()
+        self._timer = self.node.create_timer(0.02, self._poll, clock=self._clock)
+
+    def _poll(self) -> None:
+        missing = [(p.topic_name, p.get_subscription_count(), n) for p, n in self.waits
+                   if p.get_subscription_count() < n]
+        waited = (self._clock.now() - self._t0).nanoseconds / 1e9
+        if missing and waited < self.timeout_s:
+            return
+        if missing:
+            self.node.get_logger().warning(f"starting without all readers after {waited:.1f} s: "
+                                           + ", ".join(f"{t} {c}/{n}" for t, c, n in missing))
+        self._timer.cancel()
+        self.node.destroy_timer(self._timer)
+        self.on_ready()
+
+
+def run_node(factory: Callable[[Any], Any], args: list[str] | None = None,
+             signal_handlers: bool = True) -> int:
+    """Run one node in this process: init, executor, spin, and the Jazzy shutdown pattern.
+
+    ``factory(context)`` builds the node; a node with a ``done`` future (rclpy Future) ends the
+    process when it completes. Returns the exit code (0, or 1 if the node could not start).
+    """
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+    from rclpy.signals import SignalHandlerOptions
+
+    from ..errors import CikanError
+
+    rclpy.init(args=args, signal_handler_options=None if signal_handlers else SignalHandlerOptions.NO)
+    node = None
+    code = 0
+    try:
+        node = factory(None)
+        executor = make_executor()
+        executor.add_node(node)
+        done = getattr(node, "done", None)
+        if done is not None:
+            executor.spin_until_future_complete(done)
+        else:
+            executor.spin()
+        code = int(getattr(node, "exit_code", 0))
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except CikanError as exc:
+        import sys
+
+        print(f"[cikan_ros] error: {exc}", file=sys.stderr)
+        code = 1
+    finally:
+        if node is not None:
+            close = getattr(node, "close", None)
+            if close is not None:
+                close()
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code

@@ -1,0 +1,181 @@
+"""The graph launcher behind ``cikan mission`` (ROS mode) and the ROS benchmark.
+
+Starts recorder_node, governor_node, controller_node and sim_node as separate processes (fresh
+interpreters, own process groups) on an isolated domain: a ROS_DOMAIN_ID of its own,
+ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and a private ROS_LOG_DIR. Every node gets the same
+params file (the mission's configuration plus node parameters). The simulator ends the lockstep;
+the launcher then stops the governor and the controller, then the recorder (which drains and
+closes the bag), rebuilds the mission from the bag and returns the offline metrics plus the bag
+path. Ctrl-C (or SIGTERM) stops every child in the same order and leaves a closed bag.
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Iterable
+
+import yaml
+
+from ..config import Config
+from ..errors import CikanError
+from .graph import cached_predictor
+
+#: Module run for each node (``python -m``), in start order: the recorder first, the sim last.
+NODE_MODULES = {
+    "recorder": "cikan_ros.ros.recorder",
+    "governor": "governor_node",
+    "controller": "controller_node",
+    "sim": "sim_node",
+}
+
+
+def _nest(flat: dict[str, Any]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for name, value in flat.items():
+        group, _, key = name.partition(".")
+        out.setdefault(group, {})[key] = value
+    return out
+
+
+def write_params(path: Path, cfg: Config, node_params: dict[str, Any]) -> Path:
+    """A ROS 2 params file (``/**: ros__parameters:``) with the configuration and node parameters."""
+    params = _nest({**cfg.flat(), **node_params})
+    path.write_text(yaml.safe_dump({"/**": {"ros__parameters": params}}, sort_keys=False))
+    return path
+
+
+def ros_environment(domain_id: int, log_dir: Path) -> dict[str, str]:
+    """Environment of the children: isolated domain, localhost discovery, private log directory."""
+    env = dict(os.environ)
+    env.update(ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+               ROS_LOG_DIR=str(log_dir), PYTHONUNBUFFERED="1", RCUTILS_COLORIZED_OUTPUT="0")
+    return env
+
+
+def pick_domain_id() -> int:
+    """$CIKAN_ROS_DOMAIN_ID, or a random domain in 1..101 (Fast DDS kills IDs >= 233)."""
+    env = os.environ.get("CIKAN_ROS_DOMAIN_ID")
+    if env:
+        value = int(env)
+        if not 0 <= value <= 101:
+            raise CikanError(f"CIKAN_ROS_DOMAIN_ID must lie in 0..101, got {value}")
+        return value
+    return random.SystemRandom().randint(1, 101)
+
+
+@dataclass
+class Graph:
+    """Running node processes of one mission (see the module docstring)."""
+
+    workdir: Path
+    env: dict[str, str]
+    params: Path
+    procs: dict[str, subprocess.Popen] = field(default_factory=dict)
+    logs: dict[str, Path] = field(default_factory=dict)
+
+    def start(self, names: Iterable[str]) -> None:
+        for name in names:
+            log = self.workdir / f"{name}.log"
+            self.logs[name] = log
+            with open(log, "wb") as out:
+                self.procs[name] = subprocess.Popen(
+                    [sys.executable, "-m", NODE_MODULES[name], "--ros-args", "--params-file",
+                     str(self.params)], env=self.env, stdout=out, stderr=subprocess.STDOUT,
+                    stdin=subprocess.DEVNULL, start_new_session=True)
+
+    def tail(self, name: str, lines: int = 15) -> str:
+        try:
+            return "\n".join(self.logs[name].read_text(errors="replace").splitlines()[-lines:])
+        except OSError:
+            return ""
+
+    def stop(self, names: Iterable[str], timeout_s: float = 10.0) -> None:
+        """SIGINT the named children, wait, escalate to SIGKILL after ``timeout_s``."""
+        names = [n for n in names if n in self.procs]
+        for n in names:
+            if self.procs[n].poll() is None:
+                self.procs[n].send_signal(signal.SIGINT)
+        deadline = time.monotonic() + timeout_s
+        for n in names:
+            try:
+                self.procs[n].wait(max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                self.procs[n].kill()
+                self.procs[n].wait()
+
+    def stop_all(self) -> None:
+        """Producers first, the recorder last so the bag gets everything and closes."""
+        self.stop(["sim", "governor", "controller"])
+        self.stop(["recorder"], timeout_s=20.0)
+
+
+def default_bag_path(governor: str) -> Path:
+    label = Path(governor).stem if os.sep in governor or governor.endswith((".json", ".safetensors")) \
+        else governor
+    return Path("bags") / f"{datetime.now(timezone.utc):%Y%m%dT%H%M%SZ}_{label}"
+
+
+def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | None = None,
+                    bag: str | os.PathLike | None = None, config_path: str | None = None,
+                    overrides: list[str] | None = None, *, stop_on_dock: bool = False,
+                    node_params: dict[str, Any] | None = None, timeout_s: float = 3600.0,
+                    keep_logs: bool = False, on_started: Any = None) -> dict[str, Any]:
+    """Run one lockstep mission as the ROS graph; return MissionResult.metrics() + ``bag`` + ``ros``.
+
+    ``config_path``/``overrides`` are accepted for the record (``cfg`` already contains them).
+    ``node_params`` adds or overrides node parameters (e.g. deadlines); ``on_started(graph)`` is
+    called once every process runs (tests use it to inject faults).
+    """
+    from .record import mission_from_bag
+
+    bag_path = Path(bag) if bag is not None else default_bag_path(governor)
+    if bag_path.exists() and any(bag_path.iterdir()):
+        raise CikanError(f"bag directory {bag_path} exists and is not empty")
+    cached_predictor(cfg)  # fill the gain-table cache once, so every node starts in a second
+    workdir = Path(tempfile.mkdtemp(prefix="cikan_ros_"))
+    params = {"governor.name": governor, "sim.seed": -1 if seed is None else int(seed),
+              "sim.stop_on_dock": bool(stop_on_dock), "recorder.bag": str(bag_path.resolve()),
+              "graph.peers": ["sim", "governor", "controller", "recorder"], **(node_params or {})}
+    graph = Graph(workdir, ros_environment(pick_domain_id(), workdir / "ros_log"),
+                  write_params(workdir / "params.yaml", cfg, params))
+    failed = True
+    wall0 = time.perf_counter()
+    try:
+        graph.start(NODE_MODULES)
+        if on_started is not None:
+            on_started(graph)
+        sim = graph.procs["sim"]
+        while sim.poll() is None:
+            for name, proc in graph.procs.items():
+                rc = proc.poll()
+                if name != "sim" and rc is not None and rc > 0:
+                    raise CikanError(f"{name}_node exited with code {rc}:\n{graph.tail(name)}")
+            if time.perf_counter() - wall0 > timeout_s:
+                raise CikanError(f"mission did not finish within {timeout_s:g} s (wall)")
+            time.sleep(0.05)
+        if sim.returncode != 0:
+            raise CikanError(f"sim_node exited with code {sim.returncode}:\n{graph.tail('sim')}")
+        failed = False
+    finally:
+        graph.stop_all()
+        if failed or keep_logs:
+            sys.stderr.write(f"cikan mission: node logs kept in {workdir}\n")
+        else:
+            shutil.rmtree(workdir, ignore_errors=True)
+    wall = time.perf_counter() - wall0
+    result, summary = mission_from_bag(bag_path, cfg, governor)
+    metrics = result.metrics()
+    metrics["bag"] = str(bag_path)
+    metrics["ros"] = {"launch_wall_s": wall, **summary,
+                      "exit_codes": {n: p.returncode for n, p in graph.procs.items()}}
+    return metrics

@@ -1,0 +1,150 @@
+"""controller_node: saturated FTRE control toward the virtual target x_v(t) = x_c(t + tau).
+
+For each step k it pairs /deputy/odom and /tsg/time_shift by stamp, computes
+u = sat(-K(nu_v)(x_d - x_v)) with the library's ``ftre_control`` and publishes
+/deputy/accel_cmd (AccelStamped, m/s^2, ECI) stamped t_k.
+
+If the shift of a step does not come within ``controller.tau_deadline_s`` (wall), the controller
+holds the last verified shift (still feasible by recursive feasibility), reports it in
+/diagnostics, and from then on waits only ``controller.lost_deadline_s`` per step until the
+governor answers again. Without any verified shift it sends no command (the simulator then
+applies zero thrust). Non-finite, off-grid, positive or stale inputs are rejected with a diagnostic.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import AccelStamped
+from nav_msgs.msg import Odometry
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from sensor_msgs.msg import TimeReference
+
+from cikan_ros.control import ftre_control
+from cikan_ros.ros import convert as cv
+from cikan_ros.ros.graph import (ACCEL_CMD, DEPUTY_ODOM, DIAGNOSTICS, QOS_STREAM, TIME_SHIFT, Readiness,
+                                 cached_predictor, declare, declare_config, declare_graph, qos_for,
+                                 required_readers, run_node)
+
+NAME = "controller_node"
+PATH_HOLD = "hold"
+
+
+class ControllerNode(Node):
+    """The controller node (see the module docstring)."""
+
+    def __init__(self) -> None:
+        super().__init__(NAME)
+        self.cfg = cfg = declare_config(self)
+        deadline = float(declare(self, "controller.tau_deadline_s", 2.0,
+                                 "wall seconds to wait for the time shift of a step before holding "
+                                 "the last verified one"))
+        lost = float(declare(self, "controller.lost_deadline_s", 0.02,
+                             "wall seconds to wait per step after a missed deadline, until the "
+                             "governor answers again"))
+        peers, timeout = declare_graph(self)
+        pred = cached_predictor(cfg)
+        self.orbit, self.gains = pred.orbit, pred.gains
+        self.u_max = cfg.control.u_max_kmps2
+        self.timeline = cv.Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
+        self.n_steps = round(cfg.mission.duration_s / cfg.control.period_s)
+        self.tau: float | None = None     # last verified shift (s)
+        self.last_stamp = -1              # last step answered
+        self.waiting: int | None = None   # step whose shift is awaited
+        self.lost = False
+        self.pending: dict[int, dict[str, Any]] = {}
+        self.pub_accel = self.create_publisher(AccelStamped, ACCEL_CMD, QOS_STREAM)
+        self.pub_diag = self.create_publisher(DiagnosticArray, DIAGNOSTICS, qos_for(DIAGNOSTICS))
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.deadline = self.create_timer(deadline, self.on_deadline, clock=steady, autostart=False)
+        self.lost_deadline = self.create_timer(lost, self.on_deadline, clock=steady, autostart=False)
+        waits = [(self.pub_accel, required_readers(ACCEL_CMD, peers)),
+                 (self.pub_diag, required_readers(DIAGNOSTICS, peers))]
+        Readiness(self, waits, timeout, self.join).start()
+
+    def join(self) -> None:
+        self.create_subscription(Odometry, DEPUTY_ODOM, self.on_deputy, QOS_STREAM)
+        self.create_subscription(TimeReference, TIME_SHIFT, self.on_shift, QOS_STREAM)
+        self.get_logger().info("ready")
+
+    def diag(self, level: str, text: str, stamp: int, values: dict[str, Any]) -> None:
+        self.pub_diag.publish(cv.diagnostic(NAME, level, text, stamp, values))
+
+    def reject(self, text: str, stamp: int) -> None:
+        self.get_logger().warning(text)
+        self.diag("warn", text, stamp, {"event": "rejected"})
+
+    def on_deputy(self, msg: Odometry) -> None:
+        stamp = cv.time_to_ns(msg.header.stamp)
+        try:
+            k = self.timeline.step(stamp)
+            x = cv.state_from_odom(msg)
+        except cv.MessageError as exc:
+            self.reject(f"deputy state rejected: {exc}", stamp)
+            return
+        if stamp <= self.last_stamp:
+            self.reject(f"stale deputy state for step {k} rejected", stamp)
+            return
+        if k >= self.n_steps:
+            return  # final state: no command
+        self.pending.setdefault(stamp, {})["x"] = x
+        self.try_command(stamp)
+
+    def on_shift(self, msg: TimeReference) -> None:
+        try:
+            stamp, tau, source = cv.shift_from_msg(msg)
+            self.timeline.step(stamp)
+        except cv.MessageError as exc:
+            self.reject(f"time shift rejected: {exc}", cv.time_to_ns(msg.header.stamp))
+            return
+        self.lost = False  # the governor is alive: wait for it again
+        if stamp <= self.last_stamp:
+            self.reject(f"stale time shift stamped {stamp} ns rejected (late governor)", stamp)
+            return
+        self.pending.setdefault(stamp, {})["tau"] = (tau, source)
+        self.try_command(stamp)
+
+    def try_command(self, stamp: int) -> None:
+        entry = self.pending[stamp]
+        if "x" not in entry:
+            return
+        if "tau" in entry:
+            self.command(stamp, entry["x"], *entry["tau"])
+        elif self.waiting != stamp:
+            self.waiting = stamp
+            (self.lost_deadline if self.lost else self.deadline).reset()
+
+    def on_deadline(self) -> None:
+        self.deadline.cancel()
+        self.lost_deadline.cancel()
+        stamp, self.waiting = self.waiting, None
+        if stamp is None or stamp <= self.last_stamp:
+            return
+        self.lost = True
+        if self.tau is None:
+            self.diag("error", "no verified time shift yet: no command", stamp, {"event": "no-shift"})
+            return
+        self.diag("warn", "governor missed its deadline: holding the last verified time shift", stamp,
+                  {"event": "hold", "tau_s": self.tau})
+        self.command(stamp, self.pending[stamp]["x"], self.tau, PATH_HOLD)
+
+    def command(self, stamp: int, x_d: Any, tau: float, source: str) -> None:
+        """u toward x_v = x_c(t_k + tau), published stamped t_k."""
+        self.deadline.cancel()
+        self.lost_deadline.cancel()
+        self.waiting = None
+        t = self.timeline.seconds(stamp)
+        x_v, nu_v = self.orbit.state_and_anomaly(t + tau)
+        u = ftre_control(self.gains, float(nu_v), x_d, x_v, self.u_max)
+        self.pub_accel.publish(cv.accel_msg(u, stamp))
+        self.tau = tau
+        self.last_stamp = stamp
+        for s in [s for s in self.pending if s <= stamp]:
+            del self.pending[s]
+
+
+def main(args: list[str] | None = None) -> int:
+    """Console entry point ``controller_node``."""
+    return run_node(lambda _ctx: ControllerNode(), args)

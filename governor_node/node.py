@@ -1,0 +1,137 @@
+"""governor_node: answers every state pair of the lockstep with a time shift.
+
+For each step k it pairs /chief/odom and /deputy/odom by stamp (arrival order is never assumed),
+then: k = 0 (or the first pair it sees) -> ``Governor.initial``; every P_upd -> ``Governor.update``
+with its previous shift; otherwise it holds. It publishes /tsg/time_shift (TimeReference stamped
+t_k, time_ref = t_k + tau, source = decision path, "hold" between updates) and a /diagnostics
+record of every decision (tau, path, Verify calls, wall time).
+
+Which governor runs is the parameter ``governor.name`` (conventional, a shipped model family, or
+a model path); it may be changed while running: a model that fails to load is refused with the
+reason and the running governor stays. A governor that raises during a mission is reported and
+the last verified shift is held: a bad model never crashes a running mission.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from diagnostic_msgs.msg import DiagnosticArray
+from nav_msgs.msg import Odometry
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.node import Node
+from sensor_msgs.msg import TimeReference
+
+from cikan_ros.governor import make_governor
+from cikan_ros.mission import nominal_start
+from cikan_ros.ros import convert as cv
+from cikan_ros.ros.graph import (CHIEF_ODOM, DEPUTY_ODOM, DIAGNOSTICS, QOS_STREAM, TIME_SHIFT, Readiness,
+                                 cached_predictor, declare, declare_config, declare_graph, qos_for,
+                                 required_readers, run_node)
+
+NAME = "governor_node"
+PATH_HOLD = "hold"
+
+
+class GovernorNode(Node):
+    """The governor node (see the module docstring)."""
+
+    def __init__(self) -> None:
+        super().__init__(NAME)
+        self.cfg = cfg = declare_config(self)
+        name = str(declare(self, "governor.name", "conventional",
+                           "governor: conventional, cikan, grbf, rswaf, relu, gelu, or a model path "
+                           "(may be changed at run time; a model that fails to load is refused)",
+                           read_only=False))
+        peers, timeout = declare_graph(self)
+        self.predictor = cached_predictor(cfg)
+        self.governor = make_governor(name, cfg, self.predictor)
+        # Warm up (compiled kernels, model) before joining the graph: the first answer is then fast.
+        x0 = nominal_start(self.predictor)
+        self.governor.initial(x0, self.predictor.orbit.state(0.0), 0.0)
+        self.timeline = cv.Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
+        self.n_steps = round(cfg.mission.duration_s / cfg.control.period_s)
+        self.every = round(cfg.tsg.update_period_s / cfg.control.period_s)
+        self.tau: float | None = None
+        self.last_k = -1
+        self.pending: dict[int, dict[str, Any]] = {}
+        self.pub_tau = self.create_publisher(TimeReference, TIME_SHIFT, QOS_STREAM)
+        self.pub_diag = self.create_publisher(DiagnosticArray, DIAGNOSTICS, qos_for(DIAGNOSTICS))
+        self.add_on_set_parameters_callback(self.on_parameters)
+        waits = [(self.pub_tau, required_readers(TIME_SHIFT, peers)),
+                 (self.pub_diag, required_readers(DIAGNOSTICS, peers))]
+        Readiness(self, waits, timeout, self.join).start()
+
+    def join(self) -> None:
+        """Subscribe to the states once the readers of the shift are there (the sim waits for it)."""
+        self.create_subscription(Odometry, CHIEF_ODOM, lambda m: self.on_odom("chief", m), QOS_STREAM)
+        self.create_subscription(Odometry, DEPUTY_ODOM, lambda m: self.on_odom("deputy", m), QOS_STREAM)
+        self.get_logger().info(f"ready: governor {self.governor.name}")
+
+    def on_parameters(self, params: list[Any]) -> SetParametersResult:
+        for p in params:
+            if p.name == "governor.name":
+                try:
+                    new = make_governor(str(p.value), self.cfg, self.predictor)
+                except Exception as exc:  # a bad model must not reach the running mission
+                    self.diag("warn", f"governor {p.value!r} refused: {exc}", {"event": "refused"})
+                    return SetParametersResult(successful=False, reason=str(exc))
+                self.governor = new
+                self.diag("ok", f"governor switched to {new.name}", {"event": "switched"})
+        return SetParametersResult(successful=True)
+
+    def diag(self, level: str, text: str, values: dict[str, Any], stamp: int | None = None) -> None:
+        stamp = self.timeline.stamp_ns(max(self.last_k, 0)) if stamp is None else stamp
+        self.pub_diag.publish(cv.diagnostic(NAME, level, text, stamp, {"governor": self.governor.name,
+                                                                         **values}))
+
+    def on_odom(self, which: str, msg: Odometry) -> None:
+        stamp = cv.time_to_ns(msg.header.stamp)
+        try:
+            k = self.timeline.step(stamp)
+            x = cv.state_from_odom(msg)
+        except cv.MessageError as exc:
+            self.get_logger().warning(f"{which} state rejected: {exc}")
+            self.diag("warn", f"{which} state rejected: {exc}", {"event": "rejected"}, stamp)
+            return
+        if k <= self.last_k:
+            self.diag("warn", f"stale {which} state for step {k} (last answered {self.last_k}) rejected",
+                      {"event": "rejected"}, stamp)
+            return
+        if k >= self.n_steps:
+            return  # the final state of the mission: nothing left to decide
+        entry = self.pending.setdefault(stamp, {})
+        entry[which] = x
+        if len(entry) == 2:
+            for s in [s for s in self.pending if s <= stamp]:
+                del self.pending[s]
+            self.decide(k, stamp, entry["deputy"], entry["chief"])
+
+    def decide(self, k: int, stamp: int, x_d: Any, x_c: Any) -> None:
+        t = self.timeline.seconds(stamp)
+        self.last_k = k
+        try:
+            if self.tau is None:
+                rec = self.governor.initial(x_d, x_c, t)
+            elif k % self.every == 0:
+                rec = self.governor.update(x_d, x_c, t, self.tau)
+            else:
+                self.pub_tau.publish(cv.time_shift_msg(stamp, self.tau, PATH_HOLD))
+                return
+            msg = cv.time_shift_msg(stamp, rec.tau_s, rec.path)
+        except Exception as exc:  # a failing governor must not end the mission: hold the last tau
+            self.get_logger().error(f"governor failed at step {k}: {exc}")
+            self.diag("error", f"governor failed: {exc}; holding the last verified shift",
+                      {"event": "failed", "k": k}, stamp)
+            if self.tau is not None:
+                self.pub_tau.publish(cv.time_shift_msg(stamp, self.tau, PATH_HOLD))
+            return
+        self.tau = rec.tau_s
+        self.pub_tau.publish(msg)
+        self.diag("ok", "update", {"event": "update", "k": k, "tau_s": rec.tau_s, "path": rec.path,
+                                   "verify_calls": rec.verify_calls, "wall_s": rec.wall_s}, stamp)
+
+
+def main(args: list[str] | None = None) -> int:
+    """Console entry point ``governor_node``."""
+    return run_node(lambda _ctx: GovernorNode(), args)

@@ -1,0 +1,190 @@
+"""sim_node: integrates the chief (analytic Kepler) and the deputy (the library's Plant, ZOH), owns
+the lockstep and the clock.
+
+Step k: publish /clock = t_k, /chief/odom and /deputy/odom stamped t_k (SI, ECI); wait for the
+/deputy/accel_cmd stamped t_k; log the constraint margins and the applied thrust in /diagnostics;
+integrate to t_{k+1}. A command that does not come within ``sim.command_deadline_s`` (wall) is
+replaced by zero thrust and reported; after one miss the sim waits only ``sim.lost_deadline_s``
+per step until the controller answers again. Non-finite, out-of-range, off-grid or stale
+commands are rejected with a diagnostic. The process ends after T_sim (or docking, with
+``sim.stop_on_dock``) with a summary diagnostic (steps, wall time, real-time factor, step latency).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from geometry_msgs.msg import AccelStamped
+from nav_msgs.msg import Odometry
+from rclpy.clock import Clock, ClockType
+from rclpy.duration import Duration
+from rclpy.node import Node
+from rclpy.task import Future
+from diagnostic_msgs.msg import DiagnosticArray
+from rosgraph_msgs.msg import Clock as ClockMsg
+
+from cikan_ros.constraints import margins
+from cikan_ros.dynamics import Plant
+from cikan_ros.mission import nominal_start, sample_start
+from cikan_ros.ros import convert as cv
+from cikan_ros.ros.graph import (ACCEL_CMD, CHIEF_ODOM, CLOCK, DEPUTY_ODOM, DIAGNOSTICS, QOS_STREAM,
+                                 Readiness, cached_predictor, declare, declare_config, declare_graph,
+                                 qos_for, required_readers, run_node)
+
+NAME = "sim_node"
+
+
+class SimNode(Node):
+    """The simulator and lockstep master (see the module docstring)."""
+
+    def __init__(self) -> None:
+        super().__init__(NAME)
+        self.cfg = cfg = declare_config(self)
+        seed = int(declare(self, "sim.seed", -1, "Monte Carlo seed of the deputy start; -1: nominal start"))
+        self.deadline_s = float(declare(self, "sim.command_deadline_s", 5.0,
+                                        "wall seconds to wait for the command of a step before "
+                                        "applying zero thrust"))
+        self.lost_deadline_s = float(declare(self, "sim.lost_deadline_s", 0.02,
+                                             "wall seconds to wait per step after a missed deadline, "
+                                             "until the controller answers again"))
+        self.stop_on_dock = bool(declare(self, "sim.stop_on_dock", False,
+                                         "end the mission at docking instead of T_sim"))
+        peers, timeout = declare_graph(self)
+        pred = cached_predictor(cfg)
+        self.orbit = pred.orbit
+        self.plant = Plant(pred.orbit.mu, cfg.mission.plant_substeps)
+        self.x = nominal_start(pred) if seed < 0 else sample_start(pred, seed)
+        self.timeline = cv.Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
+        self.n_steps = round(cfg.mission.duration_s / cfg.control.period_s)
+        self.every = round(cfg.tsg.update_period_s / cfg.control.period_s)
+        self.u_max = cfg.control.u_max_kmps2
+        self.k = 0
+        self.x_c = np.zeros(6)
+        self.waiting = False
+        self.lost = False
+        self.misses = 0
+        self.rejected = 0
+        self.latency_ms: list[float] = []
+        self.latency_update_ms: list[float] = []
+        self.done = Future()
+        self.pub_clock = self.create_publisher(ClockMsg, CLOCK, QOS_STREAM)
+        self.pub_chief = self.create_publisher(Odometry, CHIEF_ODOM, QOS_STREAM)
+        self.pub_deputy = self.create_publisher(Odometry, DEPUTY_ODOM, QOS_STREAM)
+        self.pub_diag = self.create_publisher(DiagnosticArray, DIAGNOSTICS, qos_for(DIAGNOSTICS))
+        self.create_subscription(AccelStamped, ACCEL_CMD, self.on_accel, QOS_STREAM)
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.deadline = self.create_timer(self.deadline_s, self.on_deadline, clock=steady, autostart=False)
+        self.lost_deadline = self.create_timer(self.lost_deadline_s, self.on_deadline, clock=steady,
+                                               autostart=False)
+        waits = [(p, required_readers(t, peers)) for p, t in
+                 ((self.pub_deputy, DEPUTY_ODOM), (self.pub_chief, CHIEF_ODOM), (self.pub_clock, CLOCK),
+                  (self.pub_diag, DIAGNOSTICS))]
+        Readiness(self, waits, timeout, self.start).start()
+
+    # -- lockstep -------------------------------------------------------------------------------
+    def start(self) -> None:
+        self.get_logger().info(f"lockstep start: {self.n_steps} steps of {self.cfg.control.period_s:g} s")
+        self.wall0 = time.perf_counter()
+        self.publish_state()
+
+    def stamp(self) -> int:
+        return self.timeline.stamp_ns(self.k)
+
+    def publish_state(self) -> None:
+        """Publish the states of step k, then wait for its command (or end the mission)."""
+        stamp = self.stamp()
+        self.x_c = self.orbit.state(self.timeline.seconds(stamp))
+        self.pub_clock.publish(cv.clock_msg(stamp))
+        self.pub_chief.publish(cv.odom_msg(self.x_c, stamp, "chief"))
+        self.pub_deputy.publish(cv.odom_msg(self.x, stamp, "deputy"))
+        rel = self.x - self.x_c
+        docked = (np.linalg.norm(rel[:3]) < self.cfg.mission.dock_distance_km
+                  and np.linalg.norm(rel[3:]) < self.cfg.mission.dock_speed_kmps)
+        if self.k >= self.n_steps or (self.stop_on_dock and docked):
+            self.finish()
+            return
+        self.waiting = True
+        self.t_published = time.perf_counter()
+        (self.lost_deadline if self.lost else self.deadline).reset()
+
+    def on_accel(self, msg: AccelStamped) -> None:
+        stamp = cv.time_to_ns(msg.header.stamp)
+        if not self.waiting or stamp != self.stamp():
+            self.lost = False  # the controller is alive again; its next answer will be awaited
+            self.reject(f"stale command stamped {stamp} ns (expected {self.stamp()} ns)", stamp)
+            return
+        try:
+            u = cv.accel_from_msg(msg, self.u_max)
+        except cv.MessageError as exc:
+            self.reject(f"command rejected: {exc}", stamp)
+            return
+        self.lost = False
+        self.apply(u, "command")
+
+    def on_deadline(self) -> None:
+        self.deadline.cancel()
+        self.lost_deadline.cancel()
+        if not self.waiting:
+            return
+        self.misses += 1
+        self.lost = True
+        self.get_logger().warning(f"no command for t_k = {self.stamp()} ns: zero thrust")
+        self.apply(np.zeros(3), "zero-deadline")
+
+    def reject(self, text: str, stamp: int) -> None:
+        self.rejected += 1
+        self.get_logger().warning(text)
+        self.pub_diag.publish(cv.diagnostic(NAME, "warn", text, self.stamp(),
+                                            {"k": self.k, "event": "rejected", "stamp_ns": stamp}))
+
+    def apply(self, u: np.ndarray, source: str) -> None:
+        """Log the margins of step k with the applied thrust u (km/s^2), then integrate to k+1."""
+        self.deadline.cancel()
+        self.lost_deadline.cancel()
+        self.waiting = False
+        ms = (time.perf_counter() - self.t_published) * 1e3
+        if source == "command":
+            (self.latency_ms if self.k % self.every else self.latency_update_ms).append(ms)
+        m = margins(self.x, self.x_c, u, self.cfg.constraints, self.u_max)
+        level = "ok" if source == "command" else "warn"
+        text = "step" if source == "command" else "controller missed its deadline: zero thrust"
+        self.pub_diag.publish(cv.diagnostic(NAME, level, text, self.stamp(), {
+            "k": self.k, "event": "step", "thrust": source, "u_kmps2": u,
+            "h1_normalised": m.h1_normalised[0], "h2_kmps2": m.h2[0], "h3_kmps": m.h3[0],
+            "latency_ms": ms}))
+        self.x = self.plant.step(self.x, u, self.cfg.control.period_s)
+        self.k += 1
+        self.publish_state()
+
+    def finish(self) -> None:
+        wall = time.perf_counter() - self.wall0
+        m = margins(self.x, self.x_c, np.zeros(3), self.cfg.constraints, self.u_max)
+        steady = np.array(self.latency_ms)  # steps where the governor only holds tau
+        sim_s = self.k * self.cfg.control.period_s
+        values = {"k": self.k, "event": "complete", "steps": self.k, "wall_s": wall,
+                  "rtf": sim_s / wall if wall > 0 else float("inf"),
+                  "step_ms_p50": float(np.percentile(steady, 50)) if steady.size else float("nan"),
+                  "step_ms_p99": float(np.percentile(steady, 99)) if steady.size else float("nan"),
+                  "update_step_ms_max": max(self.latency_update_ms, default=float("nan")),
+                  "deadline_misses": self.misses, "rejected": self.rejected,
+                  "h1_normalised": m.h1_normalised[0], "h3_kmps": m.h3[0]}
+        self.pub_diag.publish(cv.diagnostic(NAME, "ok", "mission complete", self.stamp(), values))
+        self.get_logger().info(f"mission complete: {self.k} steps in {wall:.2f} s "
+                               f"(rtf {values['rtf']:.0f}), {self.misses} deadline misses")
+        self.done.set_result(True)
+
+    def close(self) -> None:
+        """Let every reliable reader acknowledge the last messages before the process ends."""
+        if not self.done.done():
+            return
+        for pub in (self.pub_clock, self.pub_chief, self.pub_deputy, self.pub_diag):
+            try:
+                pub.wait_for_all_acked(Duration(seconds=2))
+            except Exception:  # the context may already be shut down by a signal
+                return
+
+
+def main(args: list[str] | None = None) -> int:
+    """Console entry point ``sim_node``."""
+    return run_node(lambda _ctx: SimNode(), args)
