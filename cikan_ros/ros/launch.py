@@ -18,6 +18,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -150,6 +151,13 @@ def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | Non
                   write_params(workdir / "params.yaml", cfg, params))
     failed = True
     wall0 = time.perf_counter()
+
+    def terminate(_signum: int, _frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    main_thread = threading.current_thread() is threading.main_thread()
+    # SIGTERM stops the graph like Ctrl-C (signal handlers exist only in the main thread).
+    previous = signal.signal(signal.SIGTERM, terminate) if main_thread else None
     try:
         graph.start(NODE_MODULES)
         if on_started is not None:
@@ -168,11 +176,17 @@ def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | Non
         failed = False
     finally:
         graph.stop_all()
+        if main_thread:
+            signal.signal(signal.SIGTERM, previous)
         if failed or keep_logs:
             sys.stderr.write(f"cikan mission: node logs kept in {workdir}\n")
         else:
             shutil.rmtree(workdir, ignore_errors=True)
     wall = time.perf_counter() - wall0
+    rc = graph.procs["recorder"].returncode
+    if rc != 0:
+        raise CikanError(f"recorder_node ended abnormally (exit code {rc}): the bag {bag_path} holds "
+                         "the messages up to its last flushed chunk; no metrics computed")
     result, summary = mission_from_bag(bag_path, cfg, governor)
     metrics = result.metrics()
     metrics["bag"] = str(bag_path)

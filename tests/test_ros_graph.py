@@ -1,0 +1,149 @@
+"""The ROS graph as real processes over real DDS (isolated domain), checked against the offline
+loop and through the independent bag readers (rosbags, mcap)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from cikan_ros.config import load_config
+from cikan_ros.governor import GOVERNOR_NAMES, make_governor
+from cikan_ros.mission import nominal_start, run_mission
+from cikan_ros.ros.graph import cached_predictor
+from cikan_ros.ros.launch import run_ros_mission
+from ros_helpers import (independent_check, mcap_counts, ros_env, rosbags_messages, shifts, sim_steps,
+                         states)
+
+__all__ = ["ros_env"]
+MODELS = Path(__file__).resolve().parent.parent / "models"
+
+
+@pytest.fixture(scope="module")
+def conventional(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, Path]:
+    """One full 4-hour lockstep mission with the conventional governor (shared by the tests)."""
+    bag = tmp_path_factory.mktemp("conventional") / "bag"
+    with pytest.MonkeyPatch.context() as mp:
+        gen = ros_env.__wrapped__(tmp_path_factory.mktemp("env"), mp)  # type: ignore[attr-defined]
+        next(gen)
+        try:
+            metrics = run_ros_mission(load_config(), governor="conventional", bag=bag)
+        finally:
+            next(gen, None)
+    return metrics, bag
+
+
+def tau_history(msgs: dict, n: int, stamps: np.ndarray) -> np.ndarray:
+    """tau in force at each recorded step (held forward where none was published)."""
+    by_stamp = shifts(msgs)
+    out = np.empty(n)
+    for k in range(n):
+        out[k] = by_stamp.get(int(stamps[k]), out[k - 1] if k else np.nan)
+    return out
+
+
+def test_lockstep_graph_equals_offline_loop(conventional: tuple[dict, Path]) -> None:
+    metrics, bag = conventional
+    cfg = load_config()
+    gov = make_governor("conventional", cfg, cached_predictor(cfg))
+    offline = run_mission(gov, nominal_start(gov.predictor))
+    msgs = rosbags_messages(bag)
+    stamps, x_d = states(msgs, "/deputy/odom")
+    assert len(stamps) == len(offline.t)
+    epoch = round(cfg.orbit.epoch_unix_s * 1e9)
+    np.testing.assert_array_equal((stamps - epoch) / 1e9, offline.t)
+    tau = tau_history(msgs, len(stamps), stamps)
+    np.testing.assert_array_equal(tau, offline.tau)          # identical values, every step
+    rel = np.abs(x_d[-1] - offline.x_d[-1]) / np.abs(offline.x_d[-1])
+    assert rel.max() < 1e-9
+    steps = sim_steps(msgs)                                   # the thrust the simulator applied
+    u = np.array([[float(w) for w in steps[k]["u_kmps2"].split()] for k in range(len(stamps) - 1)])
+    np.testing.assert_array_equal(u, offline.u[:-1])
+    off = offline.metrics()
+    for key in ("success", "violations", "tau0_s", "t_tau_zero_s", "t_docked_s", "updates",
+                "active_updates", "verify_calls", "delta_v_kmps"):
+        assert metrics[key] == off[key], key
+
+
+def test_conventional_mission_docks_without_violation(conventional: tuple[dict, Path]) -> None:
+    metrics, bag = conventional
+    msgs = rosbags_messages(bag)
+    _, x_d = states(msgs, "/deputy/odom")
+    _, x_c = states(msgs, "/chief/odom")
+    rel = x_d[-1] - x_c[-1]
+    assert np.linalg.norm(rel[:3]) < 1e-3 and np.linalg.norm(rel[3:]) < 1e-6   # docked (km, km/s)
+    h1n, h3 = independent_check(x_d, x_c)
+    assert h1n <= 1e-9 and h3 <= 1e-9
+    assert max(shifts(msgs).items())[1] == 0.0
+    assert metrics["success"] and metrics["violations"] == 0
+    assert metrics["ros"]["deadline_misses"] == 0 and metrics["ros"]["rejected"] == 0
+
+
+def test_bag_opens_with_both_readers_and_counts_match(conventional: tuple[dict, Path]) -> None:
+    from mcap.reader import make_reader
+
+    cfg = load_config()
+    _, bag = conventional
+    n_steps = round(cfg.mission.duration_s / cfg.control.period_s)
+    meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert meta["version"] == 9 and meta["storage_identifier"] == "mcap"
+    meta_topics = {t["topic_metadata"]["name"]: t for t in meta["topics_with_message_count"]}
+    by_rosbags = {t: len(v) for t, v in rosbags_messages(bag).items()}
+    by_mcap = mcap_counts(bag)
+    assert by_rosbags == by_mcap == {t: m["message_count"] for t, m in meta_topics.items()}
+    assert sum(by_mcap.values()) == meta["message_count"]
+    # What the nodes published: K+1 states and clock ticks, K shifts and commands.
+    for topic in ("/clock", "/chief/odom", "/deputy/odom"):
+        assert by_mcap[topic] == n_steps + 1
+    assert by_mcap["/tsg/time_shift"] == by_mcap["/deputy/accel_cmd"] == n_steps
+    with open(next(bag.glob("*.mcap")), "rb") as f:
+        reader = make_reader(f)
+        header = reader.get_header()
+        summary = reader.get_summary()
+    assert header.profile == "ros2"
+    share = Path(__import__("sys").prefix) / "share"
+    for ch in summary.channels.values():
+        schema = summary.schemas[ch.schema_id]
+        assert ch.message_encoding == "cdr" and schema.encoding == "ros2msg"
+        pkg, _, name = schema.name.split("/")
+        assert schema.data.decode().startswith((share / pkg / "msg" / f"{name}.msg").read_text().rstrip("\n"))
+        topic_meta = meta_topics[ch.topic]["topic_metadata"]
+        assert yaml.safe_load(ch.metadata["offered_qos_profiles"]) == topic_meta["offered_qos_profiles"]
+        assert topic_meta["offered_qos_profiles"], ch.topic
+        hashes = json.loads((share / pkg / "msg" / f"{name}.json").read_text())["type_hashes"]
+        assert ch.metadata["topic_type_hash"] == topic_meta["type_description_hash"] == hashes[0]["hash_string"]
+
+
+def _learned_mission(name: str, tmp_path: Path) -> None:
+    if not (MODELS / name).exists():
+        pytest.skip(f"no shipped model models/{name}")
+    bag = tmp_path / "bag"
+    metrics = run_ros_mission(load_config(), governor=name, bag=bag)
+    msgs = rosbags_messages(bag)
+    _, x_d = states(msgs, "/deputy/odom")
+    _, x_c = states(msgs, "/chief/odom")
+    rel = x_d[-1] - x_c[-1]
+    assert np.linalg.norm(rel[:3]) < 1e-3 and np.linalg.norm(rel[3:]) < 1e-6
+    h1n, h3 = independent_check(x_d, x_c)
+    assert h1n <= 1e-9 and h3 <= 1e-9
+    paths = {m.source for _, m in msgs["/tsg/time_shift"]}
+    assert paths & {"nn", "nn+bisect"}, paths      # the network was consulted
+    assert metrics["governor"] == name and metrics["success"]
+
+
+@pytest.mark.parametrize("name", ["cikan", "relu"])
+def test_learned_governor_mission(name: str, ros_env: int, tmp_path: Path) -> None:
+    _learned_mission(name, tmp_path)
+
+
+@pytest.mark.slow
+def test_all_six_governors(ros_env: int, tmp_path: Path) -> None:
+    for name in GOVERNOR_NAMES:
+        if name == "conventional":
+            bag = tmp_path / name
+            assert run_ros_mission(load_config(), governor=name, bag=bag)["success"]
+        else:
+            _learned_mission(name, tmp_path / name)
