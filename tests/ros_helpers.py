@@ -3,6 +3,7 @@ thread, and bag reading with the independent readers (rosbags, mcap)."""
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import os
 import threading
@@ -16,10 +17,10 @@ import pytest
 _domains = itertools.count()
 
 
-@pytest.fixture
-def ros_env(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[int]:
-    """An isolated ROS domain (id returned) for this test: env for this process and launched
-    graphs, a private log dir, and removal of the Fast DDS shared-memory files the test left."""
+@contextlib.contextmanager
+def isolated_ros(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[int]:
+    """An isolated ROS domain (id returned): env for this process and launched graphs, a private
+    log dir, and removal of the Fast DDS shared-memory files left behind (e.g. by SIGKILL)."""
     domain = 1 + (os.getpid() * 13 + next(_domains)) % 101
     monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
     monkeypatch.setenv("CIKAN_ROS_DOMAIN_ID", str(domain))
@@ -32,6 +33,13 @@ def ros_env(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[int]:
             f.unlink()
         except OSError:
             pass
+
+
+@pytest.fixture
+def ros_env(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[int]:
+    """:func:`isolated_ros` for one test."""
+    with isolated_ros(tmp_path, monkeypatch) as domain:
+        yield domain
 
 
 class TestNode:

@@ -15,7 +15,7 @@ from cikan_ros.governor import GOVERNOR_NAMES, make_governor
 from cikan_ros.mission import nominal_start, run_mission
 from cikan_ros.ros.graph import cached_predictor
 from cikan_ros.ros.launch import run_ros_mission
-from ros_helpers import (independent_check, mcap_counts, ros_env, rosbags_messages, shifts, sim_steps,
+from ros_helpers import (independent_check, isolated_ros, mcap_counts, ros_env, rosbags_messages, shifts, sim_steps,
                          states)
 
 __all__ = ["ros_env"]
@@ -26,13 +26,8 @@ MODELS = Path(__file__).resolve().parent.parent / "models"
 def conventional(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, Path]:
     """One full 4-hour lockstep mission with the conventional governor (shared by the tests)."""
     bag = tmp_path_factory.mktemp("conventional") / "bag"
-    with pytest.MonkeyPatch.context() as mp:
-        gen = ros_env.__wrapped__(tmp_path_factory.mktemp("env"), mp)  # type: ignore[attr-defined]
-        next(gen)
-        try:
-            metrics = run_ros_mission(load_config(), governor="conventional", bag=bag)
-        finally:
-            next(gen, None)
+    with pytest.MonkeyPatch.context() as mp, isolated_ros(tmp_path_factory.mktemp("env"), mp):
+        metrics = run_ros_mission(load_config(), governor="conventional", bag=bag)
     return metrics, bag
 
 
@@ -141,9 +136,11 @@ def test_learned_governor_mission(name: str, ros_env: int, tmp_path: Path) -> No
 
 @pytest.mark.slow
 def test_all_six_governors(ros_env: int, tmp_path: Path) -> None:
-    for name in GOVERNOR_NAMES:
-        if name == "conventional":
-            bag = tmp_path / name
-            assert run_ros_mission(load_config(), governor=name, bag=bag)["success"]
-        else:
+    missing = [n for n in GOVERNOR_NAMES[1:] if not (MODELS / n).exists()]
+    assert run_ros_mission(load_config(), governor="conventional", bag=tmp_path / "conv")["success"]
+    for name in GOVERNOR_NAMES[1:]:
+        if name not in missing:
+            (tmp_path / name).mkdir()
             _learned_mission(name, tmp_path / name)
+    if missing:
+        pytest.skip(f"the other governors passed; no shipped model for {missing}")

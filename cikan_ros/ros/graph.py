@@ -3,16 +3,15 @@ readiness, the executor and the Jazzy shutdown pattern.
 
 QoS, chosen on purpose:
 
-- States, time shifts, commands (``/chief/odom``, ``/deputy/odom``, ``/tsg/time_shift``,
-  ``/deputy/accel_cmd``): RELIABLE, KEEP_LAST 10, VOLATILE. Lockstep needs every message (a lost
-  one would stall a step until a deadline), and a late joiner must not act on old states, so no
-  durability. Depth 10 covers the one message in flight per step with room for bursts.
-- ``/clock``: RELIABLE, KEEP_LAST 10 offered; compatible with rclpy's own best-effort /clock
-  subscription and lets the recorder and replay keep every tick.
-- ``/diagnostics``: RELIABLE, KEEP_LAST 100: bursts of events (e.g. per-update records) must
-  reach the recorder; nothing acts on diagnostics, so no durability.
-- Recorder subscriptions: RELIABLE, KEEP_LAST 1000, VOLATILE: a deep queue so a slow disk never
-  drops a message (reliable KEEP_LAST does not throttle publishers).
+- Every topic of the graph is RELIABLE, VOLATILE, KEEP_LAST 1000 on both sides. Lockstep needs
+  every state, shift and command (a lost one would stall a step until a deadline); a late joiner
+  must not act on old states, so no durability. The depth is for the recorder, which is not
+  part of the lockstep: reliable KEEP_LAST does not throttle a publisher, so a writer history of
+  10 let a recorder starved of CPU (a torch governor on 2 cores) lose states; 1000 samples per
+  topic (about 1 MB) let it fall 1000 steps behind and catch up. KEEP_ALL was not chosen: it
+  blocks publishers when a reader dies without being noticed, which would stall the lockstep.
+- ``/clock`` offered the same way: compatible with rclpy's own best-effort /clock subscription,
+  and the recorder and replay keep every tick.
 """
 
 from __future__ import annotations
@@ -66,17 +65,14 @@ CONSUMERS: dict[str, tuple[str, ...]] = {
 
 NODE_NAMES = ("sim", "governor", "controller", "recorder")
 
-QOS_STREAM = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
-                        durability=DurabilityPolicy.VOLATILE)
-QOS_DIAGNOSTICS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
-                             reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
-QOS_RECORD = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+QOS_STREAM = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                         reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+QOS_RECORD = QOS_STREAM
 
 
 def qos_for(topic: str) -> QoSProfile:
-    """The QoS a node of the graph offers or requests on ``topic``."""
-    return QOS_DIAGNOSTICS if topic == DIAGNOSTICS else QOS_STREAM
+    """The QoS a node of the graph offers or requests on ``topic`` (the same for all, see above)."""
+    return QOS_STREAM
 
 
 def message_class(type_name: str) -> type:
