@@ -1,5 +1,5 @@
 """sim_node: integrates the chief (analytic Kepler) and the deputy (the library's Plant, ZOH), owns
-the lockstep and the clock.
+the lockstep and the clock (as fast as the graph answers, or paced by ``sim.max_rtf``).
 
 Step k: publish /clock = t_k, /chief/odom and /deputy/odom stamped t_k (SI, ECI); wait for the
 /deputy/accel_cmd stamped t_k; log the constraint margins and the applied thrust in /diagnostics;
@@ -48,6 +48,9 @@ class SimNode(Node):
         self.lost_deadline_s = float(declare(self, "sim.lost_deadline_s", 0.02,
                                              "wall seconds to wait per step after a missed deadline, "
                                              "until the controller answers again"))
+        self.max_rtf = float(declare(self, "sim.max_rtf", 0.0,
+                                     "pace the lockstep to at most this many simulated seconds per "
+                                     "wall second (live demos, fault drills); 0: as fast as possible"))
         self.stop_on_dock = bool(declare(self, "sim.stop_on_dock", False,
                                          "end the mission at docking instead of T_sim"))
         peers, timeout = declare_graph(self)
@@ -73,7 +76,7 @@ class SimNode(Node):
         self.pub_deputy = self.create_publisher(Odometry, DEPUTY_ODOM, QOS_STREAM)
         self.pub_diag = self.create_publisher(DiagnosticArray, DIAGNOSTICS, qos_for(DIAGNOSTICS))
         self.create_subscription(AccelStamped, ACCEL_CMD, self.on_accel, QOS_STREAM)
-        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.steady = steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.deadline = self.create_timer(self.deadline_s, self.on_deadline, clock=steady, autostart=False)
         self.lost_deadline = self.create_timer(self.lost_deadline_s, self.on_deadline, clock=steady,
                                                autostart=False)
@@ -155,6 +158,15 @@ class SimNode(Node):
             "latency_ms": ms}))
         self.x = self.plant.step(self.x, u, self.cfg.control.period_s)
         self.k += 1
+        pause = self.wall0 + self.k * self.cfg.control.period_s / self.max_rtf - time.perf_counter() \
+            if self.max_rtf > 0 else 0.0
+        if pause > 0:
+            self.pace = self.create_timer(pause, self.paced, clock=self.steady)
+        else:
+            self.publish_state()
+
+    def paced(self) -> None:
+        self.destroy_timer(self.pace)
         self.publish_state()
 
     def finish(self) -> None:

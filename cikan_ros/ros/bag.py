@@ -7,8 +7,11 @@ type's .msg text; message encoding ``cdr``; channel metadata ``offered_qos_profi
 YAML text as in metadata.yaml) and ``topic_type_hash`` (RIHS01 from the installed .json).
 
 Crash safety: messages go into MCAP chunks; :meth:`BagWriter.flush` closes the current chunk and
-writes it, its message indexes and a provisional end of file (DataEnd + a Footer without summary
-+ magic) in ONE write at the logical end of the data; the next flush overwrites that trailer.
+writes it, its message indexes and a provisional end of file (DataEnd, the summary with the chunk
+indexes so far, Footer, magic: what the MCAP writer's ``finish`` would write now, produced by a
+copy of the writer) in ONE write at the logical end of the data; the next flush overwrites that
+trailer. The chunk indexes matter: messages are stored in arrival order, which differs slightly
+from stamp order across topics, and rosbags refuses unindexed files that are not time-ordered.
 metadata.yaml is rewritten atomically (temp file + rename) after each flush with the counts
 flushed so far. So after a SIGKILL the directory is a complete, readable bag up to the last
 flushed chunk, and a clean close writes the full summary.
@@ -16,6 +19,7 @@ flushed chunk, and a clean close writes the full summary.
 
 from __future__ import annotations
 
+import copy
 import json
 import os
 import re
@@ -28,10 +32,6 @@ from mcap.writer import CompressionType, Writer
 
 #: What metadata.yaml calls the files' distribution.
 ROS_DISTRO = "jazzy"
-MAGIC = b"\x89MCAP0\r\n"
-#: DataEnd (crc 0) + Footer (no summary) + magic: a valid end of a file without summary.
-TRAILER = (b"\x0f" + (4).to_bytes(8, "little") + (0).to_bytes(4, "little")
-           + b"\x02" + (20).to_bytes(8, "little") + bytes(20) + MAGIC)
 _PRIMITIVES = {"bool", "byte", "char", "float32", "float64", "int8", "uint8", "int16", "uint16",
                "int32", "uint32", "int64", "uint64", "string", "wstring"}
 
@@ -133,9 +133,27 @@ def qos_text(profiles: list[dict[str, Any]]) -> str:
 
 
 # -- the file sink ------------------------------------------------------------------------------
+class _Capture:
+    """Stream stand-in that keeps what a writer copy writes, at the sink's logical offsets."""
+
+    def __init__(self, start: int) -> None:
+        self.start = start
+        self.data = bytearray()
+
+    def write(self, data: Any) -> int:
+        self.data += data
+        return len(data)
+
+    def tell(self) -> int:
+        return self.start + len(self.data)
+
+    def flush(self) -> None:
+        pass
+
+
 class _Sink:
-    """Unbuffered file the MCAP writer writes to; on flush, the pending bytes plus a provisional
-    trailer go to the file in one write at the logical end (overwriting the previous trailer)."""
+    """File the MCAP writer writes to: bytes are kept until :meth:`commit` stores them, with a
+    provisional trailer, in one write at the logical end (overwriting the previous trailer)."""
 
     def __init__(self, path: Path) -> None:
         self.fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
@@ -149,8 +167,8 @@ class _Sink:
     def tell(self) -> int:
         return self.pos + len(self.pending)
 
-    def commit(self, trailer: bool) -> None:
-        data = bytes(self.pending) + (TRAILER if trailer else b"")
+    def commit(self, trailer: bytes) -> None:
+        data = bytes(self.pending) + trailer
         done = 0
         while done < len(data):
             done += os.pwrite(self.fd, data[done:], self.pos + done)
@@ -159,13 +177,12 @@ class _Sink:
         if not trailer:
             os.ftruncate(self.fd, self.pos)
 
-    def flush(self) -> None:  # the MCAP writer's stream.flush(): commit with a trailer
-        if self.fd >= 0:
-            self.commit(trailer=True)
+    def flush(self) -> None:  # the MCAP writer's stream.flush(): the BagWriter commits
+        pass
 
     def close(self) -> None:
         if self.fd >= 0:
-            self.commit(trailer=False)
+            self.commit(b"")
             os.fsync(self.fd)
             os.close(self.fd)
             self.fd = -1
@@ -226,7 +243,10 @@ class BagWriter:
         """Close the current chunk, store it with a provisional end of file, update metadata.yaml."""
         if self.closed or self.unflushed_bytes == 0 and self.flushed == self.counts:
             return
-        self.writer.flush()   # finalize chunk + sink.flush() (one write with the trailer)
+        self.writer.flush()   # finalize the chunk (kept in the sink)
+        capture = _Capture(self.sink.tell())
+        copy.deepcopy(self.writer, memo={id(self.sink): capture}).finish()
+        self.sink.commit(bytes(capture.data))
         self.flushed = dict(self.counts)
         self.flushed_times = list(self.times)
         self.unflushed_bytes = 0
