@@ -36,9 +36,6 @@ def wait_until(pred: Callable[[], Any], timeout: float = 60.0, what: str = "cond
     raise AssertionError(f"timed out waiting for {what}")
 
 
-def diag_summary(node: TestNode) -> list[tuple[str, int, str]]:
-    return [(st.name, st.level, st.message) for arr in node.messages("/diagnostics") for st in arr.status]
-
 
 def watcher(domain: int) -> TestNode:
     from nav_msgs.msg import Odometry
@@ -215,7 +212,7 @@ def test_bad_messages_are_rejected_with_diagnostics(ros_env: int, tmp_path: Path
     tl = cv.Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
 
     def rejected(name: str, text: str) -> Callable[[], bool]:
-        return lambda: any(st.name == name and st.level == 1 and text in st.message
+        return lambda: any(st.name == name and st.level == b"\x01" and text in st.message  # byte field
                            for arr in node.messages("/diagnostics") for st in arr.status)
     try:
         graph.start(["controller", "sim"])
@@ -226,8 +223,7 @@ def test_bad_messages_are_rejected_with_diagnostics(ros_env: int, tmp_path: Path
         bad = cv.time_shift_msg(t0, 0.0, "test")
         bad.time_ref = cv.ns_to_time(t0 + 5 * 10**9)        # tau = +5 s
         shift.publish(bad)
-        wait_until(rejected("controller_node", "must be <= 0"), 30.0,
-                   f"positive shift rejected; diagnostics: {diag_summary(node)}")
+        wait_until(rejected("controller_node", "must be <= 0"), 30.0, "positive shift rejected")
         nan = cv.accel_msg([0.0, 0.0, 0.0], t0)
         nan.accel.linear.x = float("nan")
         accel.publish(nan)
