@@ -135,6 +135,16 @@ def learned_section(cfg: Config, states: BenchStates, repeats: int) -> dict[str,
 SECTIONS.append(learned_section)
 
 
+def ros_section(cfg: Config, states: BenchStates, repeats: int) -> dict[str, Any]:
+    """The ROS graph's lockstep figures (cikan_ros.ros.bench); imported lazily (needs rclpy)."""
+    from .ros.bench import ros_section as section
+
+    return section(cfg, states, repeats)
+
+
+SECTIONS.append(ros_section)
+
+
 def run_bench(cfg: Config, n_missions: int = 6, repeats: int = 3) -> dict[str, Any]:
     """All benchmark figures in one run (ratios are comparable only within one run)."""
     states = collect_states(cfg, n_missions)
