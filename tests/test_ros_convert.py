@@ -1,0 +1,191 @@
+"""Message <-> domain conversions, bag schemas and QoS, parameters: plain unit tests (no DDS traffic)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rclpy.serialization import deserialize_message, serialize_message
+
+from cikan_ros.config import load_config
+from cikan_ros.errors import ConfigError
+from cikan_ros.ros import convert as cv
+from cikan_ros.ros.bag import BagWriter, qos_dict, schema_text, type_hash
+from cikan_ros.ros.graph import QOS_STREAM, cached_predictor, declare_config, parameter_descriptions
+from cikan_ros.tsg import Predictor
+from cikan_ros.units import ns_to_seconds, seconds_to_ns, through_si
+from ros_helpers import ros_env
+
+__all__ = ["ros_env"]
+
+X = np.array([6928.137, -1234.5678901234, 4321.000000123, 1.2345678901, 10.00542, -0.000123456789])
+
+
+def test_stamps_are_exact_and_on_the_control_grid() -> None:
+    cfg = load_config()
+    tl = cv.Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
+    assert tl.epoch_ns == 1735689600 * 10**9
+    for k in (0, 1, 7, 1440):
+        stamp = tl.stamp_ns(k)
+        assert cv.time_to_ns(cv.ns_to_time(stamp)) == stamp
+        assert tl.step(stamp) == k
+        assert tl.seconds(stamp) == ns_to_seconds(k * seconds_to_ns(cfg.control.period_s))
+    with pytest.raises(cv.MessageError, match="not a control step"):
+        tl.step(tl.stamp_ns(3) + 1)
+    with pytest.raises(cv.MessageError):
+        tl.step(tl.epoch_ns - tl.period_ns)
+
+
+def test_odometry_round_trip_is_what_the_offline_loop_sees() -> None:
+    msg = deserialize_message(serialize_message(cv.odom_msg(X, 123, "deputy")), type(cv.odom_msg(X, 1, "d")))
+    assert msg.header.frame_id == "eci" and msg.child_frame_id == "deputy"
+    assert msg.pose.pose.position.x == X[0] * 1000.0                  # SI on the wire
+    np.testing.assert_array_equal(cv.state_from_odom(msg), through_si(X))
+    msg.twist.twist.linear.y = float("inf")
+    with pytest.raises(cv.MessageError, match="non-finite"):
+        cv.state_from_odom(msg)
+    msg = cv.odom_msg(np.array([0.1, 0, 0, 0, 0, 0]), 0, "deputy")
+    with pytest.raises(cv.MessageError, match="Earth's centre"):
+        cv.state_from_odom(msg)
+    msg = cv.odom_msg(X, 0, "deputy")
+    msg.header.frame_id = "map"
+    with pytest.raises(cv.MessageError, match="frame"):
+        cv.state_from_odom(msg)
+
+
+def test_acceleration_round_trip_and_limits() -> None:
+    u = np.array([3.1e-4, -2.2e-4, 1.23456789e-4])
+    msg = cv.accel_msg(u, 5)
+    np.testing.assert_array_equal(cv.accel_from_msg(msg, 5e-4), through_si(u))
+    assert cv.time_to_ns(msg.header.stamp) == 5
+    with pytest.raises(cv.MessageError, match="exceeds the thrust limit"):
+        cv.accel_from_msg(cv.accel_msg([6e-4, 0, 0], 0), 5e-4)
+    bad = cv.accel_msg(u, 0)
+    bad.accel.linear.z = float("nan")
+    with pytest.raises(cv.MessageError, match="non-finite"):
+        cv.accel_from_msg(bad, 5e-4)
+
+
+def test_time_shift_crosses_exactly() -> None:
+    stamp = 1735689600 * 10**9 + 60 * 10**9
+    for tau in (-7.564323426, -1e-9, 0.0, -599.999999999):
+        got_stamp, got_tau, source = cv.shift_from_msg(cv.time_shift_msg(stamp, tau, "bisect"))
+        assert (got_stamp, got_tau, source) == (stamp, tau, "bisect")
+    with pytest.raises(cv.MessageError, match="whole number of nanoseconds"):
+        cv.time_shift_msg(stamp, -7.5643234261, "nn")
+    msg = cv.time_shift_msg(stamp, 0.0, "x")
+    msg.time_ref = cv.ns_to_time(stamp + 1)
+    with pytest.raises(cv.MessageError, match="<= 0"):
+        cv.shift_from_msg(msg)
+
+
+def test_diagnostic_values_round_trip_floats_exactly() -> None:
+    arr = cv.diagnostic("sim_node", "warn", "step", 42, {"k": 3, "u": np.array([1e-4 / 3, -0.0, 2.5]),
+                                                          "h": float("nan"), "x": 0.1 + 0.2})
+    (st,) = arr.status
+    assert st.level == b"\x01" and cv.time_to_ns(arr.header.stamp) == 42
+    v = cv.diagnostic_values(st)
+    np.testing.assert_array_equal(cv.floats(v["u"]), [1e-4 / 3, -0.0, 2.5])
+    assert float(v["x"]) == 0.1 + 0.2 and np.isnan(float(v["h"])) and v["k"] == "3"
+
+
+def test_cdr_stamp_of_serialised_messages() -> None:
+    stamp = 1735689600 * 10**9 + 987654321
+    for msg in (cv.odom_msg(X, stamp, "chief"), cv.clock_msg(stamp), cv.accel_msg([0, 0, 0], stamp),
+                cv.time_shift_msg(stamp, -1.0, "hold"), cv.diagnostic("n", "ok", "m", stamp)):
+        assert cv.cdr_stamp_ns(serialize_message(msg)) == stamp
+    with pytest.raises(cv.MessageError):
+        cv.cdr_stamp_ns(b"\x00\x01\x00")
+
+
+def test_schemas_parse_with_rosbags_and_hashes_match_installed_json() -> None:
+    from rosbags.typesys import get_types_from_msg
+
+    text = schema_text("nav_msgs/msg/Odometry")
+    parts = text.split("=" * 80 + "\n")
+    names = [p.splitlines()[0].removeprefix("MSG: ") for p in parts[1:]]
+    assert set(names) >= {"std_msgs/Header", "builtin_interfaces/Time", "geometry_msgs/PoseWithCovariance",
+                          "geometry_msgs/Pose", "geometry_msgs/Point", "geometry_msgs/Quaternion",
+                          "geometry_msgs/TwistWithCovariance", "geometry_msgs/Twist", "geometry_msgs/Vector3"}
+    assert len(names) == len(set(names))
+    types = get_types_from_msg(parts[0], "nav_msgs/msg/Odometry")
+    assert "nav_msgs/msg/Odometry" in types
+    share = Path(sys.prefix) / "share"
+    data = json.loads((share / "sensor_msgs/msg/TimeReference.json").read_text())
+    assert type_hash("sensor_msgs/msg/TimeReference") == data["type_hashes"][0]["hash_string"]
+
+
+def test_qos_profile_in_rosbag2_v9_form() -> None:
+    d = qos_dict(QOS_STREAM)
+    assert (d["history"], d["depth"], d["reliability"], d["durability"]) == ("keep_last", 1000, "reliable",
+                                                                            "volatile")
+    assert d["deadline"] == d["lifespan"] == {"sec": 0, "nsec": 0}   # rclpy's "default" durations
+    assert d["liveliness"] == "system_default" and d["avoid_ros_namespace_conventions"] is False
+
+
+def test_bag_writer_flushed_bag_survives_a_crash(tmp_path: Path) -> None:
+    """Files as a SIGKILL after a flush leaves them (copied before close) read with both readers;
+    messages written out of stamp order are served in order."""
+    from mcap.reader import make_reader
+    from rosbags.highlevel import AnyReader
+
+    bag = tmp_path / "bag"
+    writer = BagWriter(bag)
+    writer.add_topic("/clock", "rosgraph_msgs/msg/Clock", [qos_dict(QOS_STREAM)])
+    order = [5, 3, 4, 1, 2, 9, 8, 7, 6]
+    for n, i in enumerate(order):
+        writer.write("/clock", serialize_message(cv.clock_msg(i * 10**9)), i * 10**9)
+        if n == 4:
+            writer.flush()
+    shutil.copytree(bag, tmp_path / "crashed")
+    writer.close()
+    for path, expected in ((tmp_path / "crashed", [1, 2, 3, 4, 5]), (bag, list(range(1, 10)))):
+        with AnyReader([path]) as reader:
+            got = [t // 10**9 for _, t, _ in reader.messages()]
+            assert got == expected and reader.message_count == len(expected)
+        with open(next(path.glob("*.mcap")), "rb") as f:
+            assert sorted(m.log_time // 10**9 for _, _, m in make_reader(f).iter_messages()) == expected
+    with pytest.raises(FileExistsError):
+        BagWriter(bag)
+
+
+def test_cached_predictor_equals_from_config(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("CIKAN_CACHE_DIR", str(tmp_path))
+    cfg = load_config(**{"control.grid_deg": 30.0, "tsg.horizon_s": 3600.0})
+    ref = Predictor.from_config(cfg)
+    for _ in range(2):  # computed and stored, then loaded
+        pred = cached_predictor(cfg)
+        assert pred.config == ref.config and pred.orbit == ref.orbit
+        for name in ("gains", "cparams", "tparams"):
+            np.testing.assert_array_equal(getattr(pred, name), getattr(ref, name))
+    assert len(list(tmp_path.glob("gains-*.npy"))) == 1
+
+
+def test_parameters_declared_with_descriptions_and_validated(ros_env: int) -> None:
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.parameter import Parameter
+
+    desc = parameter_descriptions()
+    assert desc["orbit.a_km"] == "chief semi-major axis [paper]"
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=ros_env)
+    try:
+        node = rclpy.create_node("p", context=ctx, parameter_overrides=[
+            Parameter("tsg.tolerance_s", value=1e-4), Parameter("mission.duration_s", value=3600)])
+        cfg = declare_config(node)
+        assert cfg.tsg.tolerance_s == 1e-4 and cfg.mission.duration_s == 3600.0
+        assert cfg.control.q_diag == (10.0, 10.0, 10.0, 1.0, 1.0, 1.0)
+        (d,) = node.describe_parameters(["orbit.a_km"])
+        assert d.description == "chief semi-major axis [paper]" and d.read_only
+        node.destroy_node()
+        bad = rclpy.create_node("q", context=ctx, parameter_overrides=[Parameter("orbit.e", value=1.5)])
+        with pytest.raises(ConfigError, match="orbit.e"):
+            declare_config(bad)
+        bad.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
