@@ -17,6 +17,11 @@ import pytest
 _domains = itertools.count()
 
 
+def _shm_files() -> set[Path]:
+    shm = Path("/dev/shm")
+    return set(shm.glob("fastrtps_*")) | set(shm.glob("sem.fastrtps_*"))
+
+
 @contextlib.contextmanager
 def isolated_ros(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[int]:
     """An isolated ROS domain (id returned): env for this process and launched graphs, a private
@@ -26,9 +31,9 @@ def isolated_ros(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[in
     monkeypatch.setenv("CIKAN_ROS_DOMAIN_ID", str(domain))
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     monkeypatch.setenv("ROS_LOG_DIR", str(tmp_path / "ros_log"))
-    before = set(Path("/dev/shm").glob("fastrtps_*"))
+    before = _shm_files()
     yield domain
-    for f in set(Path("/dev/shm").glob("fastrtps_*")) - before:
+    for f in _shm_files() - before:
         try:
             f.unlink()
         except OSError:
