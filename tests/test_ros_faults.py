@@ -243,3 +243,51 @@ def test_bad_messages_are_rejected_with_diagnostics(ros_env: int, tmp_path: Path
         node.close()
         graph.stop(["sim", "controller"])
     assert all(p.returncode == 0 for p in graph.procs.values())
+
+
+def test_bad_model_is_refused_at_run_time_and_the_mission_goes_on(ros_env: int, tmp_path: Path) -> None:
+    """Switching governor.name to a missing or corrupt model while flying: refused with the reason
+    (SetParameters), the running governor stays, the mission completes."""
+    from rcl_interfaces.srv import SetParameters
+    from rclpy.parameter import Parameter
+
+    corrupt = tmp_path / "corrupt"
+    corrupt.mkdir()
+    (corrupt / "card.json").write_text("{not json")
+    (corrupt / "model.safetensors").write_bytes(b"\x00" * 64)
+    node = watcher(ros_env)
+    client = node.node.create_client(SetParameters, "/governor_node/set_parameters")
+    results: list[Any] = []
+
+    def hook(graph: Graph) -> None:
+        def run() -> None:
+            wait_until(lambda: len(node.messages("/deputy/odom")) >= 5, 120.0, "step 5")
+            for value in (str(tmp_path / "missing"), str(corrupt)):
+                request = SetParameters.Request(parameters=[
+                    Parameter("governor.name", value=value).to_parameter_msg()])
+                future = client.call_async(request)
+                wait_until(future.done, 30.0, "parameter service")
+                results.append(future.result().results[0])
+        threading.Thread(target=run, daemon=True).start()
+    try:
+        metrics = run_ros_mission(load_config(**{"mission.duration_s": 1200.0}), bag=tmp_path / "bag",
+                                  on_started=hook, node_params={"sim.max_rtf": 150.0})
+    finally:
+        node.close()
+    assert len(results) == 2 and not any(r.successful for r in results)
+    assert all(r.reason for r in results), results
+    assert metrics["ros"]["exit_codes"] == {"recorder": 0, "governor": 0, "controller": 0, "sim": 0}
+    assert metrics["violations"] == 0 and metrics["governor"] == "conventional"
+    msgs = rosbags_messages(tmp_path / "bag")
+    refused = [st.message for _, arr in msgs["/diagnostics"] for st in arr.status
+               if st.name == "governor_node" and "refused" in st.message]
+    assert len(refused) == 2
+    assert len(shifts(msgs)) == 120                               # the governor answered every step
+
+
+def test_bad_model_at_launch_is_a_clear_error(ros_env: int, tmp_path: Path) -> None:
+    with pytest.raises(CikanError, match="governor_node exited with code 1"):
+        run_ros_mission(load_config(**{"mission.duration_s": 100.0}), governor=str(tmp_path / "nope"),
+                        bag=tmp_path / "bag")
+    meta = yaml.safe_load((tmp_path / "bag" / "metadata.yaml").read_text())
+    assert meta["rosbag2_bagfile_information"]["message_count"] == 0   # closed, empty bag
