@@ -25,6 +25,10 @@ from .convert import Timeline, diagnostic_values, floats, time_to_ns
 from .graph import CHIEF_ODOM, DEPUTY_ODOM, DIAGNOSTICS, TIME_SHIFT
 
 
+#: Integer values of the simulator's summary record.
+_COUNTS = ("k", "steps", "deadline_misses", "rejected")
+
+
 def read_bag(path: str | Path) -> dict[str, list[tuple[int, Any]]]:
     """Every message of a bag, decoded by rosbags, as ``{topic: [(log_time_ns, msg), ...]}``."""
     from rosbags.highlevel import AnyReader
@@ -65,7 +69,8 @@ def mission_from_bag(path: str | Path, cfg: Config, governor: str) -> tuple[Miss
             if st.name == "sim_node" and v.get("event") == "step":
                 u[int(v["k"])] = floats(v["u_kmps2"])
             elif st.name == "sim_node" and v.get("event") == "complete":
-                summary = {k: (float(x) if k not in ("k", "event") else x) for k, x in v.items()}
+                summary = {k: x if k == "event" else int(x) if k in _COUNTS else float(x)
+                           for k, x in v.items()}
             elif st.name == "governor_node" and v.get("event") == "update":
                 rec = UpdateRecord(float(v["tau_s"]), v["path"], int(v["verify_calls"]), float(v["wall_s"]))
                 if rec.path == PATH_INITIAL and initial is None:
