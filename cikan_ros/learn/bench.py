@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from ..bench import BenchStates, time_updates
+from ..bench import BenchStates
 from ..config import Config
 from ..governor import LEARNED_NAMES, PATH_NN, ConventionalGovernor
 from ..tsg import Predictor
