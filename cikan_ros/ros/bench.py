@@ -1,10 +1,12 @@
-"""ROS section of ``cikan bench``: one full lockstep mission of the graph (conventional governor).
+"""ROS section of ``cikan bench``: full lockstep missions of the graph (conventional governor).
 
 - ros_rtf: simulated seconds per wall second of the lockstep (sim_node's own clock, from its
   first published state to the final one; process start-up excluded, reported separately).
 - ros_step_ms_p50 / p99: wall time from sim_node publishing the states of a step to it receiving
   that step's command, over the steps where the governor holds tau (governor compute excluded);
   ros_update_step_ms_max: the same at update steps (governor compute included).
+- The same mission once more with the other executor (``ros_single_*``): the comparison behind
+  the choice of executor (cikan_ros.ros.graph.make_executor).
 """
 
 from __future__ import annotations
@@ -18,24 +20,30 @@ from typing import Any
 from ..config import Config
 
 
-def ros_section(cfg: Config, _states: Any, _repeats: int) -> dict[str, Any]:
-    """Figures of one 4-hour (cfg.mission.duration_s) lockstep mission as separate processes."""
-    from .graph import make_executor  # noqa: F401  (fails early without the ROS wheels)
+def lockstep_figures(cfg: Config, executor: str) -> dict[str, Any]:
+    """rtf, step latency and wall times of one mission with every node on ``executor``."""
     from .launch import run_ros_mission
 
     tmp = Path(tempfile.mkdtemp(prefix="cikan_bench_"))
+    previous = os.environ.get("CIKAN_ROS_EXECUTOR")
+    os.environ["CIKAN_ROS_EXECUTOR"] = executor   # inherited by the node processes
     try:
         m = run_ros_mission(cfg, governor="conventional", bag=tmp / "bag")
     finally:
+        if previous is None:
+            os.environ.pop("CIKAN_ROS_EXECUTOR", None)
+        else:
+            os.environ["CIKAN_ROS_EXECUTOR"] = previous
         shutil.rmtree(tmp, ignore_errors=True)
     ros = m["ros"]
-    return {
-        "ros_executor": os.environ.get("CIKAN_ROS_EXECUTOR", "single"),
-        "ros_rtf": ros["rtf"],
-        "ros_step_ms_p50": ros["step_ms_p50"],
-        "ros_step_ms_p99": ros["step_ms_p99"],
-        "ros_update_step_ms_max": ros["update_step_ms_max"],
-        "ros_lockstep_wall_s": ros["wall_s"],
-        "ros_mission_wall_s": ros["launch_wall_s"],
-        "ros_mission_success": m["success"],
-    }
+    return {"rtf": ros["rtf"], "step_ms_p50": ros["step_ms_p50"], "step_ms_p99": ros["step_ms_p99"],
+            "update_step_ms_max": ros["update_step_ms_max"], "lockstep_wall_s": ros["wall_s"],
+            "mission_wall_s": ros["launch_wall_s"], "mission_success": m["success"]}
+
+
+def ros_section(cfg: Config, _states: Any, _repeats: int) -> dict[str, Any]:
+    """ros_* figures with the chosen executor (EventsExecutor), ros_single_* with the other."""
+    events = lockstep_figures(cfg, "events")
+    single = lockstep_figures(cfg, "single")
+    return {**{f"ros_{k}": v for k, v in events.items()},
+            **{f"ros_single_{k}": v for k, v in single.items() if k != "mission_success"}}

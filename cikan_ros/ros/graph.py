@@ -199,16 +199,18 @@ def cached_predictor(cfg: Config) -> Predictor:
 
 
 # -- executor and process lifecycle -------------------------------------------------------------
-#: Executor of every node process, chosen by measurement: SingleThreadedExecutor. With the
-#: rclpy 7.1.6 wheels here, rclpy.experimental.EventsExecutor never fires timers (steady or ROS
-#: clock; a 20-ms timer did not tick in 3 s) and does not leave spin() on SIGINT, and every node
-#: needs timers (deadlines, readiness, flushes). ``CIKAN_ROS_EXECUTOR=events`` selects it anyway.
-EXECUTORS = ("single", "events")
+#: Executor of every node process, chosen by measurement (``cikan bench``, 4-h lockstep mission,
+#: 2 loaded cores): rclpy.experimental.EventsExecutor gave step p50 0.7-0.9 ms, p99 5.0-5.4 ms,
+#: rtf 4200-5600; SingleThreadedExecutor p50 1.6-2.2 ms, p99 6.9-8.8 ms, rtf 2500-3400. With the
+#: rclpy 7.1.6 wheels the EventsExecutor fires timers only inside a spin with a timeout
+#: (spin() and spin_until_future_complete() without one never fire them, and ignore SIGINT), so
+#: :func:`run_node` spins it in 0.5-s slices. ``CIKAN_ROS_EXECUTOR=single`` selects the other.
+EXECUTORS = ("events", "single")
 
 
 def make_executor(context: Any = None) -> Any:
     """The process's one executor (see :data:`EXECUTORS`)."""
-    kind = os.environ.get("CIKAN_ROS_EXECUTOR", "single")
+    kind = os.environ.get("CIKAN_ROS_EXECUTOR", "events")
     if kind not in EXECUTORS:
         from ..errors import ConfigError
 
@@ -274,7 +276,14 @@ def run_node(factory: Callable[[Any], Any], args: list[str] | None = None,
         executor = make_executor()
         executor.add_node(node)
         done = getattr(node, "done", None)
-        if done is not None:
+        if os.environ.get("CIKAN_ROS_EXECUTOR", "events") == "events":
+            # EventsExecutor (rclpy 7.1.6 wheels) fires timers only inside a spin with a timeout.
+            from rclpy.task import Future
+
+            done = done if done is not None else Future()
+            while rclpy.ok() and not done.done():
+                executor.spin_until_future_complete(done, timeout_sec=0.5)
+        elif done is not None:
             executor.spin_until_future_complete(done)
         else:
             executor.spin()
