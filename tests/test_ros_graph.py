@@ -126,7 +126,14 @@ def _learned_mission(name: str, tmp_path: Path) -> None:
     assert h1n <= 1e-9 and h3 <= 1e-9
     paths = {m.source for _, m in msgs["/tsg/time_shift"]}
     assert paths & {"nn", "nn+bisect"}, paths      # the network was consulted
+    failed = [st.message for _, arr in msgs["/diagnostics"] for st in arr.status if st.level >= 2]
+    assert not failed
     assert metrics["governor"] == name and metrics["success"]
+    cfg = load_config()                            # the same governor offline: the same shifts
+    gov = make_governor(name, cfg, cached_predictor(cfg))
+    offline = run_mission(gov, nominal_start(gov.predictor))
+    stamps, _ = states(msgs, "/deputy/odom")
+    np.testing.assert_array_equal(tau_history(msgs, len(stamps), stamps), offline.tau)
 
 
 @pytest.mark.parametrize("name", ["cikan", "relu"])
