@@ -24,12 +24,11 @@ from sensor_msgs.msg import TimeReference
 
 from cikan_ros.control import ftre_control
 from cikan_ros.ros import convert as cv
-from cikan_ros.ros.graph import (ACCEL_CMD, DEPUTY_ODOM, DIAGNOSTICS, QOS_STREAM, TIME_SHIFT, Readiness,
-                                 cached_predictor, declare, declare_config, declare_graph, qos_for,
-                                 required_readers, run_node)
+from cikan_ros.ros.graph import (PATH_HOLD, ACCEL_CMD, DEPUTY_ODOM, DIAGNOSTICS, QOS_STREAM,
+                                 TIME_SHIFT, Readiness, cached_predictor, declare, declare_config,
+                                 declare_graph, qos_for, required_readers, run_node)
 
 NAME = "controller_node"
-PATH_HOLD = "hold"
 
 
 class ControllerNode(Node):

@@ -25,12 +25,11 @@ from sensor_msgs.msg import TimeReference
 from cikan_ros.governor import make_governor
 from cikan_ros.mission import nominal_start
 from cikan_ros.ros import convert as cv
-from cikan_ros.ros.graph import (CHIEF_ODOM, DEPUTY_ODOM, DIAGNOSTICS, QOS_STREAM, TIME_SHIFT, Readiness,
-                                 cached_predictor, declare, declare_config, declare_graph, qos_for,
-                                 required_readers, run_node)
+from cikan_ros.ros.graph import (PATH_HOLD, CHIEF_ODOM, DEPUTY_ODOM, DIAGNOSTICS, QOS_STREAM,
+                                 TIME_SHIFT, Readiness, cached_predictor, declare, declare_config,
+                                 declare_graph, qos_for, required_readers, run_node)
 
 NAME = "governor_node"
-PATH_HOLD = "hold"
 
 
 class GovernorNode(Node):

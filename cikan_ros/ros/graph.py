@@ -63,7 +63,8 @@ CONSUMERS: dict[str, tuple[str, ...]] = {
     DIAGNOSTICS: (),
 }
 
-NODE_NAMES = ("sim", "governor", "controller", "recorder")
+#: /tsg/time_shift source when no decision was made at this step: the last verified shift holds.
+PATH_HOLD = "hold"
 
 QOS_STREAM = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                         reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
