@@ -49,7 +49,10 @@ def kill_at_step(node: TestNode, name: str, k: int) -> Callable[[Graph], None]:
     """on_started hook: SIGKILL the named node once the watcher has seen k deputy states."""
     def hook(graph: Graph) -> None:
         def run() -> None:
-            wait_until(lambda: len(node.messages("/deputy/odom")) >= k, 120.0, f"step {k}")
+            try:
+                wait_until(lambda: len(node.messages("/deputy/odom")) >= k, 120.0, f"step {k}")
+            except AssertionError:
+                return  # the test's own assertions then show the node was never killed
             graph.procs[name].kill()
         threading.Thread(target=run, daemon=True).start()
     return hook
@@ -261,20 +264,25 @@ def test_bad_model_is_refused_at_run_time_and_the_mission_goes_on(ros_env: int, 
 
     def hook(graph: Graph) -> None:
         def run() -> None:
-            wait_until(lambda: len(node.messages("/deputy/odom")) >= 5, 120.0, "step 5")
-            for value in (str(tmp_path / "missing"), str(corrupt)):
-                request = SetParameters.Request(parameters=[
-                    Parameter("governor.name", value=value).to_parameter_msg()])
-                future = client.call_async(request)
-                wait_until(future.done, 30.0, "parameter service")
-                results.append(future.result().results[0])
+            try:
+                assert client.wait_for_service(timeout_sec=60.0), "no parameter service"
+                wait_until(lambda: len(node.messages("/deputy/odom")) >= 5, 120.0, "step 5")
+                for value in (str(tmp_path / "missing"), str(corrupt)):
+                    request = SetParameters.Request(parameters=[
+                        Parameter("governor.name", value=value).to_parameter_msg()])
+                    future = client.call_async(request)
+                    wait_until(future.done, 30.0, "parameter service")
+                    results.append(future.result().results[0])
+            except Exception as exc:  # reported by the test, not lost in the thread
+                results.append(exc)
         threading.Thread(target=run, daemon=True).start()
     try:
-        metrics = run_ros_mission(load_config(**{"mission.duration_s": 1200.0}), bag=tmp_path / "bag",
-                                  on_started=hook, node_params={"sim.max_rtf": 150.0})
+        # Paced (24 s wall) so the refusals, which import torch in the governor, happen in flight.
+        metrics = run_ros_mission(load_config(**{"mission.duration_s": 2400.0}), bag=tmp_path / "bag",
+                                  on_started=hook, node_params={"sim.max_rtf": 100.0})
     finally:
         node.close()
-    assert len(results) == 2 and not any(r.successful for r in results)
+    assert len(results) == 2 and not any(isinstance(r, Exception) or r.successful for r in results), results
     assert all(r.reason for r in results), results
     assert metrics["ros"]["exit_codes"] == {"recorder": 0, "governor": 0, "controller": 0, "sim": 0}
     assert metrics["violations"] == 0 and metrics["governor"] == "conventional"
@@ -282,7 +290,7 @@ def test_bad_model_is_refused_at_run_time_and_the_mission_goes_on(ros_env: int, 
     refused = [st.message for _, arr in msgs["/diagnostics"] for st in arr.status
                if st.name == "governor_node" and "refused" in st.message]
     assert len(refused) == 2
-    assert len(shifts(msgs)) == 120                               # the governor answered every step
+    assert len(shifts(msgs)) == 240                               # the governor answered every step
 
 
 def test_bad_model_at_launch_is_a_clear_error(ros_env: int, tmp_path: Path) -> None:
