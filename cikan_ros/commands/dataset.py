@@ -14,7 +14,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "label (x_d, x_c, t, tau*), split train/val/test by mission.")
     p.add_argument("--labels", type=int, required=True, help="number of labels N")
     p.add_argument("--out", required=True, metavar="PATH", help="output Parquet file")
-    p.add_argument("--workers", type=int, default=1, help="local worker processes (default 1)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="local worker processes (default: one per CPU; 1 runs in this process)")
     p.add_argument("--dask", metavar="ADDRESS", default=None,
                    help="run on the Dask cluster at this scheduler address (e.g. tcp://host:8786)")
     p.add_argument("--seed", type=int, default=0, help="dataset seed (the labels depend on it only)")
@@ -37,7 +38,10 @@ def run(args: argparse.Namespace) -> int:
         raise DatasetError("--chunk must be >= 1")
     spec = DatasetSpec(seed=args.seed, sigma_min_km=args.sigma_min, sigma_max_km=args.sigma_max,
                        val_fraction=args.val_fraction, test_fraction=args.test_fraction)
-    df, meta = generate(config_from_args(args), args.labels, spec, workers=args.workers,
+    import os
+
+    workers = args.workers if args.workers is not None else (os.cpu_count() or 1)
+    df, meta = generate(config_from_args(args), args.labels, spec, workers=workers,
                         dask_address=args.dask, chunk=args.chunk, progress=not args.quiet)
     path = write_parquet(df, meta, args.out)
     summary = {k: v for k, v in meta.items() if k != "config"}
