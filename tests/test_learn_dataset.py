@@ -65,3 +65,16 @@ def test_dask_cluster_gives_the_same_labels(cfg, local) -> None:
         df, meta = generate(cfg, N, SPEC, dask_address=cluster.scheduler_address, progress=False)
     assert str(meta["workers"]).startswith("dask:")
     pd.testing.assert_frame_equal(df, local[0])
+
+
+def test_cli_writes_the_same_labels(cfg, local, tmp_path, capsys) -> None:
+    from cikan_ros.cli import main
+
+    out = tmp_path / "cli.parquet"
+    assert main(["dataset", "--labels", str(N), "--out", str(out), "--seed", str(SPEC.seed),
+                 "--val-fraction", "0.3", "--test-fraction", "0.3", "--workers", "1", "--quiet",
+                 "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["labels"] == N and summary["labels_per_s"] > 0
+    back, _ = read_parquet(out)
+    pd.testing.assert_frame_equal(back, local[0])

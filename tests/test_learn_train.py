@@ -91,3 +91,23 @@ def test_two_tune_processes_share_one_new_sqlite_study(data_path: Path, tmp_path
     assert len(study.trials) == 2
     assert all(t.state.name in ("COMPLETE", "PRUNED") for t in study.trials)
     assert len({t.number for t in study.trials}) == 2
+
+
+def test_cli_tune_then_train_from_the_study(data_path: Path, tmp_path: Path,
+                                            capsys: pytest.CaptureFixture) -> None:
+    from cikan_ros.cli import main
+
+    url = f"sqlite:///{tmp_path / 's.sqlite3'}"
+    assert main(["tune", "--model", "cikan", "--trials", "2", "--storage", url, "--data",
+                 str(data_path), "--epochs", "2", "--max-train", "0", "--seed", "1", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["trials"] == 2 and "best_params" in summary
+    out = tmp_path / "m"
+    assert main(["train", "--model", "cikan", "--data", str(data_path), "--out", str(out),
+                 "--study", url, "--epochs", "2", "--quiet", "--json",
+                 "--checkpoint-dir", str(tmp_path / "ck")]) == 0
+    m = load_model(out)
+    best = summary["best_params"]
+    assert (m.arch.width, m.arch.layers, m.arch.grid) == (best["width"], best["layers"], best["grid"])
+    assert m.card["losses"]["theta_c"] == pytest.approx(best["theta_c"])
+    assert m.card["tuning"]["trials"] == 2
