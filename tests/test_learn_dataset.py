@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from cikan_ros.learn.dataset import (COLUMNS, XC_COLS, XD_COLS, DatasetSpec, generate, read_parquet,
+from cikan_ros.learn.dataset import (COLUMNS, XD_COLS, DatasetSpec, generate, read_parquet,
                                      write_parquet)
 
 SPEC = DatasetSpec(seed=11, val_fraction=0.3, test_fraction=0.3)
