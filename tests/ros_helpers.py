@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import itertools
 import os
+import tempfile
 import threading
 from collections import defaultdict
 from pathlib import Path
@@ -31,6 +32,7 @@ def isolated_ros(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[in
     monkeypatch.setenv("CIKAN_ROS_DOMAIN_ID", str(domain))
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     monkeypatch.setenv("ROS_LOG_DIR", str(tmp_path / "ros_log"))
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))   # launcher work dirs (kept on failure)
     before = _shm_files()
     yield domain
     for f in _shm_files() - before:
