@@ -22,16 +22,22 @@ from .errors import StateError
 P_A, P_E, P_MU, P_N, P_M0 = 0, 1, 2, 3, 4
 P_PVEC = slice(5, 8)   # unit vector to periapsis (ECI)
 P_QVEC = slice(8, 11)  # unit vector 90 deg ahead of periapsis in the orbit plane (ECI)
-N_PARAMS = 11
+P_S1E, P_SQMUA = 11, 12  # sqrt(1 - e^2), sqrt(mu a): precomputed for the kernels
+N_PARAMS = 13
 
 
 @nb.njit(cache=True)
 def _kepler_newton(m: float, e: float, big_e: float) -> float:
-    """Newton's method on E - e sin E = m from the guess ``big_e``."""
+    """Newton's method on E - e sin E = m from the guess ``big_e``.
+
+    Stops after a step below 1e-8 rad: Newton's error after a step of size d is at most
+    d^2 e / (2 (1 - e)) (< 1.5e-16 rad for e <= 0.74 here), so that step already lands on the root
+    to machine precision and one more iteration would only confirm it.
+    """
     for _ in range(50):
         step = (big_e - e * math.sin(big_e) - m) / (1.0 - e * math.cos(big_e))
         big_e -= step
-        if abs(step) < 1e-15:
+        if abs(step) < 1e-8:
             break
     return big_e
 
@@ -48,17 +54,18 @@ def eccentric_anomaly_kernel(mean_anomaly: float, e: float) -> float:
 
 
 @nb.njit(cache=True)
-def state_from_anomaly_kernel(orb: NDArray, big_e: float, out: NDArray) -> float:
-    """Write the state [r; v] at eccentric anomaly E into ``out[0:6]``; return nu in [0, 2 pi)."""
+def state_from_anomaly_kernel(orb: NDArray, big_e: float, out: NDArray, want_nu: bool = True) -> float:
+    """Write the state [r; v] at eccentric anomaly E into ``out[0:6]``; return nu in [0, 2 pi)
+    (or 0 without computing it when ``want_nu`` is False)."""
     a = orb[P_A]
     e = orb[P_E]
     ce = math.cos(big_e)
     se = math.sin(big_e)
-    s1e = math.sqrt(1.0 - e * e)
+    s1e = orb[P_S1E]
     x = a * (ce - e)          # perifocal position
     y = a * s1e * se
     r = a * (1.0 - e * ce)
-    k = math.sqrt(orb[P_MU] * a) / r
+    k = orb[P_SQMUA] / r
     vx = -k * se              # perifocal velocity
     vy = k * s1e * ce
     for i in range(3):
@@ -66,6 +73,8 @@ def state_from_anomaly_kernel(orb: NDArray, big_e: float, out: NDArray) -> float
         q = orb[8 + i]
         out[i] = x * p + y * q
         out[3 + i] = vx * p + vy * q
+    if not want_nu:
+        return 0.0
     nu = math.atan2(y, x)     # the true anomaly is the polar angle of the perifocal position
     if nu < 0.0:
         nu += 2.0 * math.pi
@@ -82,7 +91,8 @@ def state_kernel(orb: NDArray, t: float, out: NDArray) -> float:
 
 
 @nb.njit(cache=True)
-def state_warm_kernel(orb: NDArray, t: float, e_guess: float, out: NDArray) -> tuple[float, float]:
+def state_warm_kernel(orb: NDArray, t: float, e_guess: float, out: NDArray,
+                      want_nu: bool = True) -> tuple[float, float]:
     """:func:`state_kernel` with Newton started from ``e_guess`` (e.g. the previous sample's E
     advanced by n dt / (1 - e cos E)); returns (nu, E). Sequential predictions use it: 1-2 Newton
     iterations instead of 4-6."""
@@ -91,7 +101,7 @@ def state_warm_kernel(orb: NDArray, t: float, e_guess: float, out: NDArray) -> t
     two_pi = 2.0 * math.pi
     guess = e_guess - two_pi * math.floor((e_guess - m) / two_pi + 0.5)  # same revolution as m
     big_e = _kepler_newton(m, e, guess)
-    return state_from_anomaly_kernel(orb, big_e, out), big_e
+    return state_from_anomaly_kernel(orb, big_e, out, want_nu), big_e
 
 
 @nb.njit(cache=True)
@@ -160,6 +170,8 @@ class KeplerOrbit:
             arr[:5] = (self.a, self.e, self.mu, self.mean_motion, self.m0)
             arr[P_PVEC] = p
             arr[P_QVEC] = q
+            arr[P_S1E] = math.sqrt(1.0 - self.e**2)
+            arr[P_SQMUA] = math.sqrt(self.mu * self.a)
             arr.setflags(write=False)
             object.__setattr__(self, "_params", arr)
             return arr

@@ -69,10 +69,10 @@ def verify_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray,
         if j >= filled[0]:  # rows fill in order: j == filled[0]
             if j == 0:
                 chief[0, 6] = eccentric_anomaly_kernel(orb[P_M0] + orb[P_N] * t, e)
-                state_from_anomaly_kernel(orb, chief[0, 6], chief[0])
+                state_from_anomaly_kernel(orb, chief[0, 6], chief[0], False)
             else:
                 ep = chief[j - 1, 6]
-                _, chief[j, 6] = state_warm_kernel(orb, t, ep + dm / (1.0 - e * math.cos(ep)), chief[j])
+                _, chief[j, 6] = state_warm_kernel(orb, t, ep + dm / (1.0 - e * math.cos(ep)), chief[j], False)
             filled[0] = j + 1
         xc = chief[j]
         if h1_line_of_sight_kernel(x, xc, cp) > 0.0:
