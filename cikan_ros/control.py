@@ -8,7 +8,10 @@ nu_v, so K(nu) is tabulated once (``gain_table``) and interpolated linearly, wra
 from __future__ import annotations
 
 import functools
+import hashlib
 import math
+import os
+from pathlib import Path
 
 import numba as nb
 import numpy as np
@@ -48,18 +51,52 @@ def gain_at(orbit: KeplerOrbit, nu: float, cfg: ControlConfig) -> NDArray:
     return k
 
 
-@functools.lru_cache(maxsize=8)
-def gain_table(orbit: KeplerOrbit, cfg: ControlConfig) -> NDArray:
-    """K(nu) on the grid nu_j = j * grid_deg, j = 0 .. 360/grid_deg (last row = first): (J+1, 3, 6).
+def cache_dir() -> Path:
+    """Where gain tables are cached on disk: $CIKAN_CACHE_DIR or ~/.cache/cikan_ros."""
+    env = os.environ.get("CIKAN_CACHE_DIR")
+    return Path(env) if env else Path.home() / ".cache" / "cikan_ros"
 
-    Read-only; cached per (orbit, controller configuration).
-    """
+
+def compute_gain_table(orbit: KeplerOrbit, cfg: ControlConfig) -> NDArray:
+    """K(nu) on the grid nu_j = j * grid_deg, j = 0 .. 360/grid_deg (last row = first): (J+1, 3, 6)."""
     n_cells = round(360.0 / cfg.grid_deg)
     nus = np.arange(n_cells) * (2.0 * math.pi / n_cells)
     table = np.empty((n_cells + 1, 3, 6))
     for j, nu in enumerate(nus):
         table[j] = gain_at(orbit, float(nu), cfg)
     table[-1] = table[0]
+    return table
+
+
+@functools.lru_cache(maxsize=8)
+def gain_table(orbit: KeplerOrbit, cfg: ControlConfig) -> NDArray:
+    """:func:`compute_gain_table`, read-only, cached in memory and on disk (:func:`cache_dir`).
+
+    The table takes hundreds of DARE solves (0.4 s on a quiet core, tens of seconds on a loaded
+    one) and every process (each ROS node, each worker) needs it. The disk copy is keyed by a hash
+    of the orbit and controller configuration and stored bit-exactly (.npy, float64, no pickle),
+    so every process computes with identical gains; an unreadable or mismatched copy is recomputed.
+    """
+    n_cells = round(360.0 / cfg.grid_deg)
+    key = hashlib.sha256(repr((orbit, cfg)).encode()).hexdigest()[:24]
+    path = cache_dir() / f"gains-{key}.npy"
+    table = None
+    try:
+        table = np.load(path, allow_pickle=False)
+        if table.shape != (n_cells + 1, 3, 6) or table.dtype != np.float64 or not np.all(np.isfinite(table)):
+            table = None
+    except (OSError, ValueError):
+        table = None
+    if table is None:
+        table = compute_gain_table(orbit, cfg)
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = path.with_suffix(f".{os.getpid()}.tmp")
+            with open(tmp, "wb") as f:
+                np.save(f, table, allow_pickle=False)
+            os.replace(tmp, path)  # atomic: concurrent processes never read a partial file
+        except OSError:
+            pass  # a read-only home is no reason to fail: the table is just not cached
     table.setflags(write=False)
     return table
 
