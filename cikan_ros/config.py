@@ -17,8 +17,25 @@ import yaml
 
 from .errors import ConfigError
 
-#: The default parameter file shipped with the package (``config/cikan.yaml`` in the repository).
-DEFAULT_CONFIG_PATH = Path(__file__).resolve().parent.parent / "config" / "cikan.yaml"
+def _default_config_path() -> Path:
+    """``config/cikan.yaml`` of the repository, else the copy a colcon/ament install puts in
+    ``<prefix>/share/cikan_ros/config/`` (found through $AMENT_PREFIX_PATH or this Python's prefix)."""
+    import os
+    import sys
+
+    repo = Path(__file__).resolve().parent.parent / "config" / "cikan.yaml"
+    if repo.exists():
+        return repo
+    prefixes = [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p] + [sys.prefix]
+    for prefix in prefixes:
+        candidate = Path(prefix) / "share" / "cikan_ros" / "config" / "cikan.yaml"
+        if candidate.exists():
+            return candidate
+    return repo
+
+
+#: The default parameter file shipped with the package.
+DEFAULT_CONFIG_PATH = _default_config_path()
 
 
 def _check(cond: bool, name: str, value: Any, what: str) -> None:

@@ -15,7 +15,7 @@ from cikan_ros.config import load_config
 from cikan_ros.errors import ConfigError
 from cikan_ros.ros import convert as cv
 from cikan_ros.ros.bag import BagWriter, qos_dict, schema_text, type_hash
-from cikan_ros.ros.graph import QOS_STREAM, cached_predictor, declare_config, parameter_descriptions
+from cikan_ros.ros.graph import QOS_STREAM, declare_config, parameter_descriptions
 from cikan_ros.tsg import Predictor
 from cikan_ros.units import ns_to_seconds, seconds_to_ns, through_si
 from ros_helpers import ros_env
@@ -151,18 +151,6 @@ def test_bag_writer_flushed_bag_survives_a_crash(tmp_path: Path) -> None:
             assert sorted(m.log_time // 10**9 for _, _, m in make_reader(f).iter_messages()) == expected
     with pytest.raises(FileExistsError):
         BagWriter(bag)
-
-
-def test_cached_predictor_equals_from_config(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setenv("CIKAN_CACHE_DIR", str(tmp_path))
-    cfg = load_config(**{"control.grid_deg": 30.0, "tsg.horizon_s": 3600.0})
-    ref = Predictor.from_config(cfg)
-    for _ in range(2):  # computed and stored, then loaded
-        pred = cached_predictor(cfg)
-        assert pred.config == ref.config and pred.orbit == ref.orbit
-        for name in ("gains", "cparams", "tparams"):
-            np.testing.assert_array_equal(getattr(pred, name), getattr(ref, name))
-    assert len(list(tmp_path.glob("gains-*.npy"))) == 1
 
 
 def test_parameters_declared_with_descriptions_and_validated(ros_env: int) -> None:

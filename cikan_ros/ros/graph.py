@@ -17,8 +17,6 @@ QoS, chosen on purpose:
 from __future__ import annotations
 
 import array
-import hashlib
-import math
 import os
 import re
 from dataclasses import dataclass
@@ -29,9 +27,6 @@ import numpy as np
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from ..config import DEFAULT_CONFIG_PATH, Config, config_from_flat, load_config
-from ..control import gain_table
-from ..constraints import constraint_params
-from ..orbit import KeplerOrbit
 from ..tsg import Predictor
 
 # -- topics -------------------------------------------------------------------------------------
@@ -163,40 +158,12 @@ def declare_graph(node: Any) -> tuple[list[str], float]:
     return [str(p) for p in peers], float(timeout)
 
 
-# -- predictor with a disk cache of the gain table ---------------------------------------------
-def cache_dir() -> Path:
-    """Where gain tables are cached: $CIKAN_CACHE_DIR or ~/.cache/cikan_ros."""
-    env = os.environ.get("CIKAN_CACHE_DIR")
-    return Path(env) if env else Path.home() / ".cache" / "cikan_ros"
-
-
+# -- predictor ---------------------------------------------------------------------------------
 def cached_predictor(cfg: Config) -> Predictor:
-    """``Predictor.from_config(cfg)`` with the FTRE gain table (hundreds of DAREs, seconds to
-    tens of seconds) loaded from a disk cache keyed by the orbit and controller configuration.
-
-    The launcher fills the cache once; every node then starts in well under a second. The
-    table is stored bit-exactly (.npy, float64), so the nodes compute what the offline loop does.
-    """
-    orbit = KeplerOrbit.from_config(cfg.orbit)
-    key = hashlib.sha256(repr((cfg.orbit, cfg.control)).encode()).hexdigest()[:24]
-    path = cache_dir() / f"gains-{key}.npy"
-    try:
-        table = np.load(path, allow_pickle=False)
-    except (OSError, ValueError):
-        table = np.array(gain_table(orbit, cfg.control))
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(f".{os.getpid()}.tmp")
-        with open(tmp, "wb") as f:
-            np.save(f, table, allow_pickle=False)
-        os.replace(tmp, path)
-    table.setflags(write=False)
-    horizon = cfg.tsg.horizon_s if cfg.tsg.horizon_s > 0 else orbit.period
-    # The packing below is Predictor.from_config's; tests check both give equal predictors.
-    tparams = np.array([cfg.tsg.sample_period_s, math.ceil(horizon / cfg.tsg.sample_period_s - 1e-9),
-                        cfg.tsg.rk4_substeps, cfg.tsg.terminal_pos_km, cfg.tsg.terminal_vel_kmps],
-                       dtype=float)
-    return Predictor(cfg, orbit, table, constraint_params(cfg.constraints, cfg.control.u_max_kmps2),
-                     tparams)
+    """``Predictor.from_config(cfg)``: the core caches the FTRE gain table on disk
+    (:func:`cikan_ros.control.gain_table`), so the launcher fills it once and every node then
+    starts in well under a second with bit-identical gains."""
+    return Predictor.from_config(cfg)
 
 
 # -- executor and process lifecycle -------------------------------------------------------------
