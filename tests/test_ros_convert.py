@@ -16,7 +16,6 @@ from cikan_ros.errors import ConfigError
 from cikan_ros.ros import convert as cv
 from cikan_ros.ros.bag import BagWriter, qos_dict, schema_text, type_hash
 from cikan_ros.ros.graph import QOS_STREAM, declare_config, parameter_descriptions
-from cikan_ros.tsg import Predictor
 from cikan_ros.units import ns_to_seconds, seconds_to_ns, through_si
 from ros_helpers import ros_env
 

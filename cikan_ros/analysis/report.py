@@ -83,7 +83,9 @@ def load_runs(path: str | Path, cfg: Config | None = None) -> tuple[str, list[Ru
     if bags:
         loaded = [run_from_bag(b, cfg) for b in bags]
         return "bags", [r for r, _ in loaded], [m for _, m in loaded]
-    jsons = sorted(p.glob("*/seed_*.json"))
+    order = ["conventional", "cikan", "grbf", "rswaf", "relu", "gelu"]
+    jsons = sorted(p.glob("*/seed_*.json"), key=lambda j: (
+        order.index(j.parent.name) if j.parent.name in order else len(order), j.parent.name, j.name))
     if jsons:
         loaded = [run_from_npz(j) for j in jsons]
         return "montecarlo", [r for r, _ in loaded], [m for _, m in loaded]
