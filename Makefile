@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml
 install: $(STAMP)
 
 run: $(STAMP)
-	$(BIN)/cikan mission --offline --governor conventional
+	$(BIN)/cikan mission --governor conventional --bag runs/bags/$$(date -u +%Y%m%dT%H%M%SZ)_conventional
 
 test: $(STAMP)
 	$(BIN)/python -m pytest
