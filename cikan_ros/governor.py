@@ -51,6 +51,13 @@ class Governor(Protocol):
         ...
 
 
+def initial_update(predictor: Predictor, x_d: ArrayLike, t: float) -> UpdateRecord:
+    """The first-instant search (SPEC §5) as a timed record; every governor starts with it."""
+    start = time.perf_counter()
+    tau, calls = predictor.initial_shift(x_d, t)
+    return UpdateRecord(tau, PATH_INITIAL, calls, time.perf_counter() - start)
+
+
 class ConventionalGovernor:
     """The optimal TSG pi*: zero test, then bisection to the tolerance over [tau_prev, 0]."""
 
@@ -64,9 +71,7 @@ class ConventionalGovernor:
         return cls(Predictor.from_config(cfg))
 
     def initial(self, x_d: ArrayLike, x_c: ArrayLike, t: float) -> UpdateRecord:
-        start = time.perf_counter()
-        tau, calls = self.predictor.initial_shift(x_d, t)
-        return UpdateRecord(tau, PATH_INITIAL, calls, time.perf_counter() - start)
+        return initial_update(self.predictor, x_d, t)
 
     def update(self, x_d: ArrayLike, x_c: ArrayLike, t: float, tau_prev: float) -> UpdateRecord:
         start = time.perf_counter()

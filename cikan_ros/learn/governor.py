@@ -26,7 +26,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..governor import (PATH_BISECT, PATH_INITIAL, PATH_NN, PATH_NN_BISECT, PATH_VERIFY_ZERO,
-                        PATH_ZERO, UpdateRecord)
+                        PATH_ZERO, UpdateRecord, initial_update)
 from ..tsg import Predictor, quantise_shift
 from .arch import NumpyNet
 from .features import features_one
@@ -65,9 +65,7 @@ class LearnedGovernor:
         return quantise_shift(-math.exp(y))
 
     def initial(self, x_d: ArrayLike, x_c: ArrayLike, t: float) -> UpdateRecord:
-        start = time.perf_counter()
-        tau, calls = self.predictor.initial_shift(x_d, t)
-        return UpdateRecord(tau, PATH_INITIAL, calls, time.perf_counter() - start)
+        return initial_update(self.predictor, x_d, t)
 
     def update(self, x_d: ArrayLike, x_c: ArrayLike, t: float, tau_prev: float) -> UpdateRecord:
         start = time.perf_counter()
@@ -75,22 +73,23 @@ class LearnedGovernor:
         if tau_prev == 0.0:
             return UpdateRecord(0.0, PATH_ZERO, 0, time.perf_counter() - start)
         tau_c = self.proposal(x_d, x_c)
+        cache = pred.cache(t)  # chief states along the horizon, shared by this update's predictions
         calls = 0
         if tau_prev <= tau_c <= 0.0:
             calls += 1
-            if pred.verify(x_d, t, tau_c):
+            if pred.verify(x_d, t, tau_c, cache):
                 tau, path = tau_c, PATH_NN
             else:
-                tau, c = pred.bisect(x_d, t, tau_prev, tau_c)
+                tau, c = pred.bisect(x_d, t, tau_prev, tau_c, cache)
                 calls += c
                 path = PATH_NN_BISECT
         else:
-            tau, c = pred.bisect(x_d, t, tau_prev, 0.0)
+            tau, c = pred.bisect(x_d, t, tau_prev, 0.0, cache)
             calls += c
             path = PATH_BISECT
         if tau < 0.0 and -tau <= pred.config.tsg.zero_snap_s:
             calls += 1
-            if pred.verify(x_d, t, 0.0):
+            if pred.verify(x_d, t, 0.0, cache):
                 tau, path = 0.0, PATH_VERIFY_ZERO
         return UpdateRecord(tau, path, calls, time.perf_counter() - start)
 
