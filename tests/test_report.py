@@ -97,3 +97,12 @@ def test_bag_metrics_equal_the_in_process_metrics(predictor):
             assert from_bag[key] == pytest.approx(value, rel=1e-9, abs=tol), key
         else:
             assert from_bag[key] == value, key
+
+
+def test_bag_carries_its_configuration_and_governor():
+    """The recorder stores the mission's configuration and governor in metadata.yaml custom_data."""
+    from cikan_ros.analysis.report import bag_config, bag_governor
+    from cikan_ros.config import load_config
+
+    assert bag_config(BAG, None) == load_config()
+    assert bag_governor(BAG) == "conventional"

@@ -63,7 +63,7 @@ def test_governor_killed_controller_holds_last_verified_shift(ros_env: int, tmp_
     node = watcher(ros_env)
     try:
         metrics = run_ros_mission(cfg, bag=tmp_path / "bag", on_started=kill_at_step(node, "governor", 20),
-                                  node_params={"controller.tau_deadline_s": 0.5, "sim.max_rtf": 200.0})
+                                  node_params={"controller.tau_deadline_s": 2.0, "sim.max_rtf": 200.0})
     finally:
         node.close()
     assert metrics["ros"]["exit_codes"]["governor"] == -signal.SIGKILL
@@ -96,7 +96,7 @@ def test_controller_killed_sim_applies_zero_thrust(ros_env: int, tmp_path: Path)
     node = watcher(ros_env)
     try:
         metrics = run_ros_mission(cfg, bag=tmp_path / "bag", on_started=kill_at_step(node, "controller", 20),
-                                  node_params={"sim.command_deadline_s": 0.5, "sim.max_rtf": 200.0})
+                                  node_params={"sim.command_deadline_s": 2.0, "sim.max_rtf": 200.0})
     finally:
         node.close()
     assert metrics["ros"]["exit_codes"]["controller"] == -signal.SIGKILL

@@ -191,8 +191,11 @@ class _Sink:
 class BagWriter:
     """A rosbag2 MCAP bag directory written from raw CDR messages (see the module docstring)."""
 
-    def __init__(self, path: str | Path, chunk_bytes: int = 256 * 1024) -> None:
+    def __init__(self, path: str | Path, chunk_bytes: int = 256 * 1024,
+                 custom_data: dict[str, str] | None = None) -> None:
         self.dir = Path(path)
+        #: metadata.yaml ``custom_data`` (string -> string), e.g. the mission's configuration.
+        self.custom_data = dict(custom_data or {})
         if self.dir.exists() and any(self.dir.iterdir()):
             raise FileExistsError(f"bag directory {self.dir} exists and is not empty")
         self.dir.mkdir(parents=True, exist_ok=True)
@@ -283,7 +286,7 @@ class BagWriter:
             "relative_file_paths": [self.file.name],
             "files": [{"path": self.file.name, "starting_time": {"nanoseconds_since_epoch": start},
                        "duration": {"nanoseconds": end - start}, "message_count": total}],
-            "custom_data": {},
+            "custom_data": self.custom_data,
             "ros_distro": ROS_DISTRO,
         }
         tmp = self.dir / "metadata.yaml.tmp"

@@ -9,6 +9,7 @@ recorder keeps taking messages until none came for ``recorder.drain_s``, then cl
 
 from __future__ import annotations
 
+import json
 import signal
 import time
 from typing import Any
@@ -19,7 +20,7 @@ from rclpy.task import Future
 
 from . import convert as cv
 from .bag import BagWriter, qos_dict
-from .graph import QOS_RECORD, TOPIC_TYPES, declare, message_class, run_node
+from .graph import QOS_RECORD, TOPIC_TYPES, declare, declare_config, message_class, run_node
 
 NAME = "recorder_node"
 
@@ -42,7 +43,12 @@ class RecorderNode(Node):
             from ..errors import ConfigError
 
             raise ConfigError("recorder.bag (the bag directory) must be set")
-        self.bag = BagWriter(bag, self.chunk_bytes)
+        # The bag carries what it takes to analyse it: the configuration and the governor's name.
+        cfg = declare_config(self)
+        governor = str(declare(self, "governor.name", "conventional",
+                               "governor of the recorded mission (stored in the bag's metadata)"))
+        self.bag = BagWriter(bag, self.chunk_bytes, {
+            "cikan_ros.config": json.dumps(cfg.flat(), sort_keys=True), "cikan_ros.governor": governor})
         self.done = Future()
         self.stopping = False
         self.last_message = time.monotonic()
