@@ -13,13 +13,13 @@ the seed only: not on the number of workers nor on where they run (local process
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterator, Sequence
+from typing import Any, Iterator, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -28,6 +28,7 @@ from ..config import Config, config_from_flat
 from ..errors import NoFeasibleShiftError
 from ..governor import ConventionalGovernor
 from ..mission import MissionResult, run_mission, sample_start
+from ..parallel import ordered_map
 from ..tsg import Predictor
 from ..units import through_si
 from .errors import DatasetError
@@ -132,27 +133,12 @@ def label_missions(cfg_json: str, spec: DatasetSpec, missions: Sequence[int]) ->
     return out
 
 
-def _chunks(start: int, size: int) -> Iterator[list[int]]:
-    m = start
+def _chunks(size: int) -> Iterator[list[int]]:
+    """Mission ids 0, 1, 2, ... in lists of ``size`` (an unbounded task stream)."""
+    m = 0
     while True:
         yield list(range(m, m + size))
         m += size
-
-
-def _ordered(submit: Callable[[list[int]], Any], result: Callable[[Any], list[dict[str, Any]]],
-             in_flight: int, chunk: int) -> Iterator[dict[str, Any]]:
-    """Mission results in mission order, keeping ``in_flight`` chunks running."""
-    ids = _chunks(0, chunk)
-    pending: list[Any] = [submit(next(ids)) for _ in range(in_flight)]
-    try:
-        while True:
-            fut = pending.pop(0)
-            pending.append(submit(next(ids)))
-            yield from result(fut)
-    finally:
-        for fut in pending:
-            if hasattr(fut, "cancel"):
-                fut.cancel()
 
 
 def generate(cfg: Config, n_labels: int, spec: DatasetSpec, workers: int = 1,
@@ -171,29 +157,15 @@ def generate(cfg: Config, n_labels: int, spec: DatasetSpec, workers: int = 1,
         raise DatasetError(f"--workers must be >= 1, got {workers}")
     cfg_json = json.dumps(cfg.flat(), sort_keys=True)
     start = time.perf_counter()
-    executor: Any = None
-    client: Any = None
-    if dask_address:
-        from distributed import Client
-
-        client = Client(dask_address, timeout="20s")
-        n_slots = max(1, sum(client.nthreads().values()))
-        stream = _ordered(lambda ids: client.submit(label_missions, cfg_json, spec, ids, pure=False),
-                          lambda f: f.result(), 2 * n_slots, chunk)
-    elif workers > 1:
-        import multiprocessing as mp
-
-        executor = ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"))
-        stream = _ordered(lambda ids: executor.submit(label_missions, cfg_json, spec, ids),
-                          lambda f: f.result(), 2 * workers, chunk)
-    else:
-        stream = _ordered(lambda ids: ids, lambda ids: label_missions(cfg_json, spec, ids), 1, chunk)
+    # Chunks of missions, in mission order, on this process, local processes or Dask.
+    stream = ordered_map(functools.partial(label_missions, cfg_json, spec), _chunks(chunk),
+                         workers, dask_address)
     parts: list[dict[str, Any]] = []
     total = 0
     n_missions = 0
     bar = tqdm(total=n_labels, unit="label", disable=not progress, desc="cikan dataset")
     try:
-        for res in stream:
+        for res in (r for chunk_results in stream for r in chunk_results):
             n_missions += 1
             take = min(res["n"], n_labels - total)
             if take > 0:
@@ -203,12 +175,8 @@ def generate(cfg: Config, n_labels: int, spec: DatasetSpec, workers: int = 1,
             if total >= n_labels:
                 break
     finally:
-        stream.close()
+        stream.close()  # cancels what is still pending and releases the workers
         bar.close()
-        if executor is not None:
-            executor.shutdown(wait=True, cancel_futures=True)
-        if client is not None:
-            client.close()
     wall = time.perf_counter() - start
     cols: dict[str, Any] = {c: [] for c in COLUMNS}
     for p in parts:
@@ -236,7 +204,7 @@ def generate(cfg: Config, n_labels: int, spec: DatasetSpec, workers: int = 1,
         "split_labels": {s: int((df["split"] == s).sum()) for s in SPLITS},
         "wall_s": wall,
         "labels_per_s": len(df) / wall if wall > 0 else None,
-        "workers": workers if not dask_address else f"dask:{n_slots}",
+        "workers": workers if not dask_address else f"dask:{dask_address}",
         "config": cfg.flat(),
     }
     return df, meta
