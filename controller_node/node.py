@@ -22,7 +22,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from sensor_msgs.msg import TimeReference
 
-from cikan_ros.control import ftre_control
+from cikan_ros.mission import ClosedLoop
 from cikan_ros.ros import convert as cv
 from cikan_ros.ros.graph import (PATH_HOLD, ACCEL_CMD, DEPUTY_ODOM, DIAGNOSTICS, QOS_STREAM,
                                  TIME_SHIFT, Readiness, cached_predictor, declare, declare_config,
@@ -44,11 +44,10 @@ class ControllerNode(Node):
                              "wall seconds to wait per step after a missed deadline, until the "
                              "governor answers again"))
         peers, timeout = declare_graph(self)
-        pred = cached_predictor(cfg)
-        self.orbit, self.gains = pred.orbit, pred.gains
-        self.u_max = cfg.control.u_max_kmps2
+        self.loop = ClosedLoop(cached_predictor(cfg))
+        self.loop.command(0, 0.0, self.loop.predictor.orbit.state(0.0))  # load the compiled kernels
         self.timeline = cv.Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
-        self.n_steps = round(cfg.mission.duration_s / cfg.control.period_s)
+        self.n_steps = self.loop.n_steps
         self.tau: float | None = None     # last verified shift (s)
         self.last_stamp = -1              # last step answered
         self.waiting: int | None = None   # step whose shift is awaited
@@ -134,9 +133,7 @@ class ControllerNode(Node):
         self.deadline.cancel()
         self.lost_deadline.cancel()
         self.waiting = None
-        t = self.timeline.seconds(stamp)
-        x_v, nu_v = self.orbit.state_and_anomaly(t + tau)
-        u = ftre_control(self.gains, float(nu_v), x_d, x_v, self.u_max)
+        u = self.loop.command(self.timeline.step(stamp), tau, x_d)
         self.pub_accel.publish(cv.accel_msg(u, stamp))
         self.tau = tau
         self.last_stamp = stamp

@@ -23,7 +23,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import TimeReference
 
 from cikan_ros.governor import make_governor
-from cikan_ros.mission import nominal_start
+from cikan_ros.mission import ClosedLoop, warm_up
 from cikan_ros.ros import convert as cv
 from cikan_ros.ros.graph import (PATH_HOLD, CHIEF_ODOM, DEPUTY_ODOM, DIAGNOSTICS, QOS_STREAM,
                                  TIME_SHIFT, Readiness, cached_predictor, declare, declare_config,
@@ -45,12 +45,12 @@ class GovernorNode(Node):
         peers, timeout = declare_graph(self)
         self.predictor = cached_predictor(cfg)
         self.governor = make_governor(name, cfg, self.predictor)
-        # Warm up (compiled kernels, model) before joining the graph: the first answer is then fast.
-        x0 = nominal_start(self.predictor)
-        self.governor.initial(x0, self.predictor.orbit.state(0.0), 0.0)
+        self.loop = ClosedLoop(self.predictor)
+        # Compiled kernels and the model are loaded and run once before the node joins the graph
+        # (the sim waits for it): no decision of the mission pays for them.
+        warm_up(self.governor, self.loop)
         self.timeline = cv.Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
-        self.n_steps = round(cfg.mission.duration_s / cfg.control.period_s)
-        self.every = round(cfg.tsg.update_period_s / cfg.control.period_s)
+        self.n_steps = self.loop.n_steps
         self.tau: float | None = None
         self.last_k = -1
         self.pending: dict[int, dict[str, Any]] = {}
@@ -72,6 +72,7 @@ class GovernorNode(Node):
             if p.name == "governor.name":
                 try:
                     new = make_governor(str(p.value), self.cfg, self.predictor)
+                    warm_up(new, self.loop)
                 except Exception as exc:  # a bad model must not reach the running mission
                     self.diag("warn", f"governor {p.value!r} refused: {exc}", {"event": "refused"})
                     return SetParametersResult(successful=False, reason=str(exc))
@@ -107,14 +108,10 @@ class GovernorNode(Node):
             self.decide(k, stamp, entry["deputy"], entry["chief"])
 
     def decide(self, k: int, stamp: int, x_d: Any, x_c: Any) -> None:
-        t = self.timeline.seconds(stamp)
         self.last_k = k
         try:
-            if self.tau is None:
-                rec = self.governor.initial(x_d, x_c, t)
-            elif k % self.every == 0:
-                rec = self.governor.update(x_d, x_c, t, self.tau)
-            else:
+            rec = self.loop.decide(self.governor, k, x_d, x_c, self.tau)
+            if rec is None:
                 self.pub_tau.publish(cv.time_shift_msg(stamp, self.tau, PATH_HOLD))
                 return
             msg = cv.time_shift_msg(stamp, rec.tau_s, rec.path)

@@ -26,7 +26,7 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 
 from cikan_ros.constraints import margins
 from cikan_ros.dynamics import Plant
-from cikan_ros.mission import nominal_start, sample_start
+from cikan_ros.mission import ClosedLoop, nominal_start, sample_start
 from cikan_ros.ros import convert as cv
 from cikan_ros.ros.graph import (ACCEL_CMD, CHIEF_ODOM, CLOCK, DEPUTY_ODOM, DIAGNOSTICS, QOS_STREAM,
                                  Readiness, cached_predictor, declare, declare_config, declare_graph,
@@ -59,8 +59,8 @@ class SimNode(Node):
         self.plant = Plant(pred.orbit.mu, cfg.mission.plant_substeps)
         self.x = nominal_start(pred) if seed < 0 else sample_start(pred, seed)
         self.timeline = cv.Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
-        self.n_steps = round(cfg.mission.duration_s / cfg.control.period_s)
-        self.every = round(cfg.tsg.update_period_s / cfg.control.period_s)
+        self.loop = ClosedLoop(pred)
+        self.n_steps = self.loop.n_steps
         self.u_max = cfg.control.u_max_kmps2
         self.k = 0
         self.x_c = np.zeros(6)
@@ -101,10 +101,7 @@ class SimNode(Node):
         self.pub_clock.publish(cv.clock_msg(stamp))
         self.pub_chief.publish(cv.odom_msg(self.x_c, stamp, "chief"))
         self.pub_deputy.publish(cv.odom_msg(self.x, stamp, "deputy"))
-        rel = self.x - self.x_c
-        docked = (np.linalg.norm(rel[:3]) < self.cfg.mission.dock_distance_km
-                  and np.linalg.norm(rel[3:]) < self.cfg.mission.dock_speed_kmps)
-        if self.k >= self.n_steps or (self.stop_on_dock and docked):
+        if self.loop.finished(self.k, self.x, self.x_c, self.stop_on_dock):
             self.finish()
             return
         self.waiting = True
@@ -148,7 +145,7 @@ class SimNode(Node):
         self.waiting = False
         ms = (time.perf_counter() - self.t_published) * 1e3
         if source == "command":
-            (self.latency_ms if self.k % self.every else self.latency_update_ms).append(ms)
+            (self.latency_update_ms if self.k == 0 or self.loop.update_due(self.k) else self.latency_ms).append(ms)
         m = margins(self.x, self.x_c, u, self.cfg.constraints, self.u_max)
         level = "ok" if source == "command" else "warn"
         text = "step" if source == "command" else "controller missed its deadline: zero thrust"
