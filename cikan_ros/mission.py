@@ -84,20 +84,13 @@ def docked(x_d: ArrayLike, x_c: ArrayLike, cfg: Config) -> NDArray:
         & (np.linalg.norm(rel[..., 3:], axis=-1) < cfg.mission.dock_speed_kmps)
 
 
-class ClosedLoop:
-    """One step k of the closed loop (SPEC §6), the single implementation used by
-    :func:`run_mission` and by the ROS nodes.
+class Schedule:
+    """The lockstep schedule of a mission (SPEC §6): K = T_sim / T_c control steps at t_k = k T_c
+    (whole nanoseconds); the governor decides at the first state it sees (the first-instant
+    search) and then at every k > 0 with k T_c a multiple of P_upd, holding its shift in between;
+    the mission ends at k = K (or when docked, if asked)."""
 
-    K = T_sim / T_c control steps at t_k = k T_c (whole nanoseconds); the governor decides at the
-    first state it sees (the first-instant search) and then at every k > 0 with k T_c a multiple
-    of P_upd, holding its shift in between; the controller commands the saturated FTRE
-    acceleration toward the virtual target x_v = x_c(t_k + tau); the mission ends at k = K (or
-    when docked, if asked).
-    """
-
-    def __init__(self, predictor: Predictor) -> None:
-        cfg = predictor.config
-        self.predictor = predictor
+    def __init__(self, cfg: Config) -> None:
         self.config = cfg
         self.period_ns = seconds_to_ns(cfg.control.period_s)
         self.n_steps = round(cfg.mission.duration_s / cfg.control.period_s)
@@ -116,6 +109,20 @@ class ClosedLoop:
         """Is a governor update due at step k (after the first instant)?"""
         return k > 0 and k % self.every == 0
 
+    def finished(self, k: int, x_d: NDArray, x_c: NDArray, stop_on_dock: bool = False) -> bool:
+        """Does the mission end at step k (T_sim reached, or docked when ``stop_on_dock``)?"""
+        return k >= self.n_steps or (stop_on_dock and bool(docked(x_d, x_c, self.config)))
+
+
+class ClosedLoop(Schedule):
+    """One step k of the closed loop, the single implementation used by :func:`run_mission` and
+    by the ROS nodes: the :class:`Schedule`, the governor's decision, and the saturated FTRE
+    command toward the virtual target x_v = x_c(t_k + tau)."""
+
+    def __init__(self, predictor: Predictor) -> None:
+        super().__init__(predictor.config)
+        self.predictor = predictor
+
     def decide(self, governor: Governor, k: int, x_d: NDArray, x_c: NDArray,
                tau_prev: float | None) -> UpdateRecord | None:
         """The governor's part of step k: the first-instant search while no shift is in force
@@ -131,10 +138,6 @@ class ClosedLoop:
         """Saturated FTRE acceleration (km/s^2, ECI) at t_k toward x_v = x_c(t_k + tau)."""
         x_v, nu_v = self.predictor.orbit.state_and_anomaly(self.time(k) + tau)
         return ftre_control(self.predictor.gains, float(nu_v), x_d, x_v, self.config.control.u_max_kmps2)
-
-    def finished(self, k: int, x_d: NDArray, x_c: NDArray, stop_on_dock: bool = False) -> bool:
-        """Does the mission end at step k (T_sim reached, or docked when ``stop_on_dock``)?"""
-        return k >= self.n_steps or (stop_on_dock and bool(docked(x_d, x_c, self.config)))
 
 
 def warm_up(governor: Governor, loop: ClosedLoop | None = None) -> None:
@@ -211,9 +214,49 @@ class MissionResult:
             "update_ms_max": float(walls.max()) if walls.size else 0.0,
             "active_update_ms_mean": float(active.mean()) if active.size else 0.0,
             "active_update_ms_max": float(active.max()) if active.size else 0.0,
-            "verify_calls": int(self.initial.verify_calls + sum(r.verify_calls for r in self.updates)),
+            # Wall times and Verify calls are NaN / None where only the typed topics were recorded.
+            "verify_calls": int(self.initial.verify_calls + sum(r.verify_calls for r in self.updates))
+            if all(math.isfinite(r.wall_s) for r in [self.initial, *self.updates]) else None,
             "duration_s": float(self.t[-1] - self.t[0]),
         }
+
+
+@dataclass(frozen=True)
+class ShiftAudit:
+    """A run's time shifts checked against the governor contract, independently of the governor.
+
+    ``unverified``: steps where a shift took effect (a decision was due, or the shift changed)
+    that is not known feasible: Verify from the recorded state rejects it, and it is not the
+    previous verified shift held (feasible by recursive feasibility). ``off_schedule``: steps
+    where the shift changed although no decision was due. ``decisions``: steps where one was due.
+    """
+
+    unverified: int
+    off_schedule: int
+    decisions: int
+
+
+def audit_shifts(predictor: Predictor, x_d: NDArray, tau: NDArray) -> ShiftAudit:
+    """Audit the shift in force ``tau`` (K+1,) (NaN: none yet) against the deputy states ``x_d``
+    (K+1, 6) as the governor saw them (a bag's states are; offline ones go through SI first)."""
+    loop = ClosedLoop(predictor)
+    unverified = off_schedule = decisions = 0
+    prev: float | None = None
+    prev_ok = False
+    for k in range(min(len(tau) - 1, loop.n_steps)):   # the final state gets no shift
+        if not math.isfinite(tau[k]):
+            continue
+        due = prev is None or loop.update_due(k)
+        changed = prev is None or float(tau[k]) != prev
+        decisions += due
+        if not (due or changed):
+            continue
+        off_schedule += changed and not due
+        ok = (not changed and prev_ok) or (tau[k] <= 0.0 and predictor.verify(x_d[k], loop.time(k),
+                                                                            float(tau[k])))
+        unverified += not ok
+        prev, prev_ok = float(tau[k]), ok
+    return ShiftAudit(int(unverified), int(off_schedule), int(decisions))
 
 
 def run_mission(governor: Governor, x_d0: NDArray, plant: Plant | None = None) -> MissionResult:

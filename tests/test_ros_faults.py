@@ -293,9 +293,11 @@ def test_bad_model_is_refused_at_run_time_and_the_mission_goes_on(ros_env: int, 
     assert len(shifts(msgs)) == 240                               # the governor answered every step
 
 
-def test_bad_model_at_launch_is_a_clear_error(ros_env: int, tmp_path: Path) -> None:
-    with pytest.raises(CikanError, match="governor_node exited with code 1"):
-        run_ros_mission(load_config(**{"mission.duration_s": 100.0}), governor=str(tmp_path / "nope"),
-                        bag=tmp_path / "bag")
-    meta = yaml.safe_load((tmp_path / "bag" / "metadata.yaml").read_text())
-    assert meta["rosbag2_bagfile_information"]["message_count"] == 0   # closed, empty bag
+def test_bad_model_at_launch_is_one_line_and_a_rerun_may_reuse_the_bag(ros_env: int, tmp_path: Path) -> None:
+    cfg = load_config(**{"mission.duration_s": 100.0})
+    with pytest.raises(CikanError, match="governor_node exited with code [12]: .*nope") as failure:
+        run_ros_mission(cfg, governor=str(tmp_path / "nope"), bag=tmp_path / "bag")
+    assert "\n" not in str(failure.value) and "removed the empty bag" in str(failure.value)
+    assert not (tmp_path / "bag").exists()             # nothing was recorded: nothing left behind
+    metrics = run_ros_mission(cfg, bag=tmp_path / "bag")   # the same --bag again
+    assert metrics["ros"]["steps"] == 10 and len(rosbags_messages(tmp_path / "bag")["/deputy/odom"]) == 11
