@@ -44,8 +44,9 @@ class ControllerNode(Node):
                              "wall seconds to wait per step after a missed deadline, until the "
                              "governor answers again"))
         peers, timeout = declare_graph(self)
-        self.loop = ClosedLoop(cached_predictor(cfg))
-        self.loop.command(0, 0.0, self.loop.predictor.orbit.state(0.0))  # load the compiled kernels
+        pred = cached_predictor(cfg)
+        self.loop = ClosedLoop(pred)
+        self.loop.command(0, 0.0, pred.orbit.state(0.0))  # load the compiled kernels now
         self.timeline = cv.Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
         self.n_steps = self.loop.n_steps
         self.tau: float | None = None     # last verified shift (s)

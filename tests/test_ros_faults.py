@@ -188,12 +188,17 @@ def test_recorder_sigkill_leaves_bag_readable_to_last_chunk(ros_env: int, tmp_pa
     assert 0 < len(k) < 361 and np.array_equal(k, np.arange(len(k)))  # every step up to the chunk
 
 
+#: Steps of the missions the tests interrupt: 5 days of sim time, a minute or more of wall time
+#: even on an idle machine, so the signal lands mid-mission however slowly the test runs.
+LONG_STEPS = 43200
+
+
 def launch_cikan(bag: Path) -> tuple[subprocess.Popen, list[int]]:
-    """`cikan mission` (a 12-h mission) as a process, once its bag holds messages: (process, the
-    pids of its four node processes)."""
+    """`cikan mission` (:data:`LONG_STEPS` steps) as a process, once its bag holds messages:
+    (process, the pids of its four node processes)."""
     cikan = Path(sys.executable).parent / "cikan"
     proc = subprocess.Popen([str(cikan), "mission", "--bag", str(bag), "--json",
-                             "--set", "mission.duration_s=43200"], stdout=subprocess.PIPE,
+                             "--set", f"mission.duration_s={10 * LONG_STEPS}"], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, env=dict(os.environ))
 
     def progress() -> bool:
@@ -218,7 +223,7 @@ def assert_closed_mid_mission(bag: Path) -> None:
     with open(next(bag.glob("*.mcap")), "rb") as f:
         assert make_reader(f).get_summary() is not None
     counts = {t: len(v) for t, v in rosbags_messages(bag).items()}
-    assert 0 < counts["/deputy/odom"] < 4321
+    assert 0 < counts["/deputy/odom"] < LONG_STEPS + 1
 
 
 def test_sigint_to_cikan_mission_ends_children_and_closes_bag(ros_env: int, tmp_path: Path) -> None:

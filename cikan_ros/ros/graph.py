@@ -223,30 +223,12 @@ class Readiness:
         self.on_ready()
 
 
-def end_process(code: int) -> None:
-    """End this process now with ``code``, after the atexit handlers and flushing stdio, without
-    the interpreter's teardown: with numba and Fast DDS loaded that takes 0.3-1.7 s (measured),
-    and a node must end promptly when its launcher stops it or dies. Everything that matters
-    (bag closed, node destroyed, rclpy shut down) is done before."""
-    import atexit
-    import sys
-
-    atexit._run_exitfuncs()
-    for stream in (sys.stdout, sys.stderr):
-        try:
-            stream.flush()
-        except (OSError, ValueError):
-            pass
-    os._exit(code)
-
-
 def run_node(factory: Callable[[Any], Any], args: list[str] | None = None,
              signal_handlers: bool = True, exit_process: bool = True) -> int:
     """Run one node in this process: init, executor, spin, and the Jazzy shutdown pattern.
 
     ``factory(context)`` builds the node; a node with a ``done`` future (rclpy Future) ends the
-    process when it completes. Returns the exit code (0, or 1 if the node could not start);
-    with ``exit_process`` (the node executables) the process ends there (:func:`end_process`).
+    process when it completes. Returns the exit code (0, or 1 if the node could not start).
     """
     import rclpy
     from rclpy.executors import ExternalShutdownException
@@ -288,6 +270,23 @@ def run_node(factory: Callable[[Any], Any], args: list[str] | None = None,
                 close()
             node.destroy_node()
         rclpy.try_shutdown()
-    if exit_process:
+    if exit_process:   # the node executables: the process ends here (see end_process)
         end_process(code)
     return code
+
+
+def end_process(code: int) -> None:
+    """End this process now with ``code``, after the atexit handlers and flushing stdio, without
+    the interpreter's teardown: with numba and Fast DDS loaded that takes 0.3-1.7 s (measured),
+    and a node must end promptly when its launcher stops it or dies. Everything that matters
+    (bag closed, node destroyed, rclpy shut down) is done before."""
+    import atexit
+    import sys
+
+    atexit._run_exitfuncs()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(code)
