@@ -7,6 +7,7 @@ The learned governor (Algorithm 1, ``cikan_ros.learn``) implements the same prot
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
@@ -23,16 +24,33 @@ PATH_VERIFY_ZERO = "verify-zero"  # tau = 0 passed Verify
 PATH_BISECT = "bisect"          # bisection over [tau_prev, 0]
 PATH_NN = "nn"                  # network proposal passed Verify
 PATH_NN_BISECT = "nn+bisect"    # network proposal failed Verify; bisection over [tau_prev, tau_nn]
+PATH_KEEP = "keep"              # keep rule: tau_prev kept without prediction (no progress proposed)
+PATH_PROBE = "probe"            # keep rule: budgeted bisection over [tau_prev, 0] on schedule
+
+
+def update_index(t: float, update_period_s: float) -> int:
+    """k of the update at time t (s since the mission epoch): updates fall at t = k P_upd."""
+    return int(round(t / update_period_s))
 
 
 @dataclass(frozen=True)
 class UpdateRecord:
-    """One governor decision: the shift (s), the path taken, Verify calls and wall time (s)."""
+    """One governor decision: the shift (s), the path taken, Verify calls, wall time (s), the
+    update index k (0 at the first instant) and the shift tau_{k-1} it started from (NaN at k = 0).
+
+    An update is *active* when tau_{k-1} < 0: the states where a governor decides something
+    (SPEC §9); with tau_{k-1} = 0 the answer is 0 without prediction."""
 
     tau_s: float
     path: str
     verify_calls: int
     wall_s: float
+    k: int = 0
+    tau_prev: float = math.nan
+
+    @property
+    def active(self) -> bool:
+        return self.tau_prev < 0.0
 
 
 @runtime_checkable
@@ -55,7 +73,8 @@ def initial_update(predictor: Predictor, x_d: ArrayLike, t: float) -> UpdateReco
     """The first-instant search (SPEC §5) as a timed record; every governor starts with it."""
     start = time.perf_counter()
     tau, calls = predictor.initial_shift(x_d, t)
-    return UpdateRecord(tau, PATH_INITIAL, calls, time.perf_counter() - start)
+    return UpdateRecord(tau, PATH_INITIAL, calls, time.perf_counter() - start,
+                        update_index(t, predictor.config.tsg.update_period_s))
 
 
 class ConventionalGovernor:
@@ -77,7 +96,8 @@ class ConventionalGovernor:
         start = time.perf_counter()
         tau, calls = self.predictor.optimal_shift(x_d, t, tau_prev)
         path = PATH_ZERO if calls == 0 else PATH_VERIFY_ZERO if tau == 0.0 else PATH_BISECT
-        return UpdateRecord(tau, path, calls, time.perf_counter() - start)
+        return UpdateRecord(tau, path, calls, time.perf_counter() - start,
+                            update_index(t, self.predictor.config.tsg.update_period_s), tau_prev)
 
 
 #: Names of the learned model families shipped in ``models/`` (see ``cikan_ros.learn``).

@@ -111,16 +111,18 @@ class ChiefCache:
 
 @nb.njit(cache=True)
 def bisect_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, x0: NDArray, t_k: float,
-                  lo_ns: int, hi_ns: int, tol_ns: int, chief: NDArray, filled: NDArray) -> tuple[int, int, int]:
+                  lo_ns: int, hi_ns: int, tol_ns: int, chief: NDArray, filled: NDArray,
+                  max_calls: int) -> tuple[int, int, int]:
     """Bisection on [lo, hi] (integer ns) with lo feasible (not re-verified) and hi infeasible.
 
     Returns (lo, hi, Verify calls) at the end: the answer lo is feasible and within ``tol_ns`` of
-    the infeasible hi.
+    the infeasible hi, or, when ``max_calls`` (>= 0; -1: no limit) Verify calls ran out first,
+    the verified lower end reached so far (the bracket is then wider than the tolerance).
     Shifts are whole nanoseconds (the resolution of ROS time stamps), so a verified shift crosses
     the ROS boundary exactly: tau_s = tau_ns / 1e9 on both sides.
     """
     calls = 0
-    while hi_ns - lo_ns > tol_ns:
+    while hi_ns - lo_ns > tol_ns and calls != max_calls:
         mid = (lo_ns + hi_ns) // 2
         calls += 1
         if verify_kernel(orb, table, cp, tp, x0, t_k, mid / 1e9, chief, filled):
@@ -137,7 +139,7 @@ def conventional_update_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: ND
     """pi* over [tau_prev, 0] (tau_prev < 0, ns): zero test first, then bisection. (tau_ns, calls)."""
     if verify_kernel(orb, table, cp, tp, x0, t_k, 0.0, chief, filled):
         return 0, 1
-    tau, _, calls = bisect_kernel(orb, table, cp, tp, x0, t_k, tau_prev_ns, 0, tol_ns, chief, filled)
+    tau, _, calls = bisect_kernel(orb, table, cp, tp, x0, t_k, tau_prev_ns, 0, tol_ns, chief, filled, -1)
     return tau, calls + 1
 
 
@@ -182,7 +184,7 @@ def initial_search_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray
         if not found:
             return 0, calls, False
     tau, _, c = bisect_kernel(orb, table, cp, tp, x0, t0, -m * grid_ns, -(m - 1) * grid_ns, tol_ns,
-                             chief, filled)
+                             chief, filled, -1)
     return tau, calls + c, True
 
 
@@ -256,16 +258,18 @@ class Predictor:
                                   self._shift(tau, "tau"), c.rows, c.filled))
 
     def bisect(self, x_d: ArrayLike, t: float, lo: float, hi: float,
-               cache: ChiefCache | None = None) -> tuple[float, int]:
+               cache: ChiefCache | None = None, budget: int | None = None) -> tuple[float, int]:
         """Bisection between a feasible ``lo`` (not re-verified) and an infeasible ``hi`` (s).
 
-        Returns (tau, Verify calls): tau is feasible and within the tolerance of an infeasible shift.
+        Returns (tau, Verify calls): tau is feasible and within the tolerance of an infeasible shift,
+        or with a ``budget`` of Verify calls that ran out, the verified lower end reached (>= lo).
         """
-        lo_s, _, calls = self.bisect_bracket(x_d, t, lo, hi, cache)
+        lo_s, _, calls = self.bisect_bracket(x_d, t, lo, hi, cache, budget)
         return lo_s, calls
 
     def bisect_bracket(self, x_d: ArrayLike, t: float, lo: float, hi: float,
-                       cache: ChiefCache | None = None) -> tuple[float, float, int]:
+                       cache: ChiefCache | None = None, budget: int | None = None
+                       ) -> tuple[float, float, int]:
         """Like :meth:`bisect`, returning the final bracket (feasible lo, infeasible hi, calls)."""
         x, t = self._state(x_d, t)
         lo, hi = self._shift(lo, "lo"), self._shift(hi, "hi")
@@ -273,7 +277,8 @@ class Predictor:
             raise StateError(f"bisection bracket is empty: lo = {lo} > hi = {hi}")
         c = self._cache(t, cache)
         lo_ns, hi_ns, calls = bisect_kernel(self.orbit.params, self.gains, self.cparams, self.tparams,
-                                            x, t, to_ns(lo), to_ns(hi), self.tol_ns, c.rows, c.filled)
+                                            x, t, to_ns(lo), to_ns(hi), self.tol_ns, c.rows, c.filled,
+                                            -1 if budget is None else int(budget))
         return ns_to_seconds(lo_ns), ns_to_seconds(hi_ns), int(calls)
 
     def optimal_shift(self, x_d: ArrayLike, t: float, tau_prev: float) -> tuple[float, int]:

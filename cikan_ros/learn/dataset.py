@@ -36,10 +36,11 @@ from .errors import DatasetError
 #: Parquet columns: state components as the governor saw them (km, km/s, ECI), labels in s.
 XD_COLS = tuple(f"xd{i}" for i in range(6))
 XC_COLS = tuple(f"xc{i}" for i in range(6))
-COLUMNS = ("mission", "split", "t_s", *XD_COLS, *XC_COLS, "tau_prev_s", "tau_star_s", "sigma_km")
+COLUMNS = ("mission", "split", "t_s", "update_k", *XD_COLS, *XC_COLS, "tau_prev_s", "tau_star_s",
+           "sigma_km")
 SPLITS = ("train", "val", "test")
 #: Version of the label recipe, stored in the file; bump when labels change meaning.
-RECIPE = "conventional-updates-v1"
+RECIPE = "conventional-updates-v2"  # v2: adds update_k, the update index
 
 
 @dataclass(frozen=True)
@@ -81,12 +82,13 @@ def update_labels(res: MissionResult) -> dict[str, NDArray]:
     them; tau* is the governor's answer there, i.e. pi* over [tau_{k-1}, 0].
     """
     tc = res.config.control.period_s
-    rows_t, rows_xd, rows_xc, rows_prev, rows_tau = [], [], [], [], []
+    rows_t, rows_k, rows_xd, rows_xc, rows_prev, rows_tau = [], [], [], [], [], []
     for t_u, rec in zip(res.update_t, res.updates):
         k = int(round(t_u / tc))
         tau_prev = float(res.tau[k - 1])
         if tau_prev < 0.0 and rec.tau_s < 0.0:
             rows_t.append(float(res.t[k]))
+            rows_k.append(int(round(t_u / res.config.tsg.update_period_s)))
             rows_xd.append(through_si(res.x_d[k]))
             rows_xc.append(through_si(res.x_c[k]))
             rows_prev.append(tau_prev)
@@ -94,6 +96,7 @@ def update_labels(res: MissionResult) -> dict[str, NDArray]:
     n = len(rows_t)
     return {
         "t_s": np.array(rows_t, dtype=float),
+        "update_k": np.array(rows_k, dtype=np.int64),
         "x_d": np.array(rows_xd, dtype=float).reshape(n, 6),
         "x_c": np.array(rows_xc, dtype=float).reshape(n, 6),
         "tau_prev_s": np.array(rows_prev, dtype=float),
@@ -184,6 +187,7 @@ def generate(cfg: Config, n_labels: int, spec: DatasetSpec, workers: int = 1,
         cols["mission"].append(np.full(n, p["mission"], dtype=np.int64))
         cols["split"].append(np.full(n, p["split"], dtype=object))
         cols["t_s"].append(p["t_s"][:n])
+        cols["update_k"].append(p["update_k"][:n])
         for i in range(6):
             cols[XD_COLS[i]].append(p["x_d"][:n, i])
             cols[XC_COLS[i]].append(p["x_c"][:n, i])
