@@ -34,13 +34,18 @@ from numpy.typing import NDArray
 from scipy.special import erf
 
 from .errors import ModelFileError
-from .features import FEATURE_SETS, N_FEATURES
+from .features import FEATURE_SETS, N_FEATURES, n_features
 
 FAMILIES = ("cikan", "grbf", "rswaf", "relu", "gelu")
 KAN_FAMILIES = ("cikan", "grbf", "rswaf")
 #: Buffers every model file carries (float64): feature and target normalisation.
 NORM_TENSORS = {"feature_mean": (N_FEATURES,), "feature_std": (N_FEATURES,),
                 "target_mean": (1,), "target_std": (1,)}
+
+
+def norm_tensor_shapes(n_in: int) -> dict[str, tuple[int, ...]]:
+    """Shapes of the normalisation buffers of a network with ``n_in`` inputs."""
+    return {"feature_mean": (n_in,), "feature_std": (n_in,), "target_mean": (1,), "target_std": (1,)}
 LAYERNORM_EPS = 1e-5
 
 
@@ -57,7 +62,7 @@ class Arch:
     grid_range: float = 3.0
     h: float = 0.0
     hidden_norm: bool = True
-    n_in: int = N_FEATURES
+    n_in: int = 0           # 0: the feature set's input count
     features: str = "vnb"
 
     def __post_init__(self) -> None:
@@ -78,10 +83,12 @@ class Arch:
             bad("grid_range must be > 0")
         if not (math.isfinite(self.h) and self.h >= 0):
             bad("h must be >= 0")
-        if self.n_in != N_FEATURES:
-            bad(f"n_in must be {N_FEATURES}")
         if self.features not in FEATURE_SETS:
             bad(f"features must be one of {FEATURE_SETS}")
+        if self.n_in == 0:
+            object.__setattr__(self, "n_in", n_features(self.features))
+        if self.n_in != n_features(self.features):
+            bad(f"n_in must be {n_features(self.features)} for features {self.features!r}")
 
     # -- shape -------------------------------------------------------------------------------
     @property

@@ -58,7 +58,7 @@ class LearnedGovernor:
         self.net = net
         self.predictor = predictor
         self.name = name
-        self._feat = np.empty(12)
+        self._feat = np.empty(net.arch.n_in)
         self._kind = net.arch.features
 
     @classmethod
@@ -66,15 +66,16 @@ class LearnedGovernor:
                    ) -> "LearnedGovernor":
         return cls(NumpyNet(model.arch, model.tensors), predictor, name or model.arch.family)
 
-    def log_shift(self, x_d: ArrayLike, x_c: ArrayLike) -> float:
-        """NN(features): predicted ln|τ| (s) at states x_d, x_c (km, km/s)."""
+    def log_shift(self, x_d: ArrayLike, x_c: ArrayLike, tau_prev: float = math.nan) -> float:
+        """NN(features): predicted ln|τ| (s) at states x_d, x_c (km, km/s) with previous shift
+        τ_{k-1} (s; an input of "vnb-prev" networks only)."""
         f = features_one(np.asarray(x_d, dtype=float), np.asarray(x_c, dtype=float), self._kind,
-                         self._feat)
+                         self._feat, tau_prev)
         return self.net.forward_one(self.net.normalise(f))
 
-    def proposal(self, x_d: ArrayLike, x_c: ArrayLike) -> float:
+    def proposal(self, x_d: ArrayLike, x_c: ArrayLike, tau_prev: float = math.nan) -> float:
         """τ_c = -exp(NN) on the nanosecond grid; NaN if the network's output is not usable."""
-        y = self.log_shift(x_d, x_c)
+        y = self.log_shift(x_d, x_c, tau_prev)
         if not (math.isfinite(y) and y <= MAX_LOG_SHIFT):
             return math.nan
         return quantise_shift(-math.exp(y))
@@ -88,7 +89,7 @@ class LearnedGovernor:
         k = update_index(t, pred.config.tsg.update_period_s)
         if tau_prev == 0.0:
             return UpdateRecord(0.0, PATH_ZERO, 0, time.perf_counter() - start, k, tau_prev)
-        tau_c = self.proposal(x_d, x_c)
+        tau_c = self.proposal(x_d, x_c, tau_prev)
         if pred.config.learned.algorithm == "paper":
             tau, path, calls, cache = self._paper(x_d, t, tau_prev, tau_c)
         else:

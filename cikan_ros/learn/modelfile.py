@@ -20,7 +20,7 @@ from typing import Any, Mapping
 import numpy as np
 from numpy.typing import NDArray
 
-from .arch import FAMILIES, NORM_TENSORS, Arch
+from .arch import FAMILIES, NORM_TENSORS, Arch, norm_tensor_shapes
 from .errors import ModelFileError
 
 FORMAT = "cikan-model/1"
@@ -119,7 +119,7 @@ def resolve(name_or_path: str | Path) -> Path:
 
 
 def _check_tensors(arch: Arch, arrays: Mapping[str, NDArray], where: Path) -> None:
-    expected = {**arch.tensor_shapes(), **NORM_TENSORS}
+    expected = {**arch.tensor_shapes(), **norm_tensor_shapes(arch.n_in)}
     missing = sorted(set(expected) - set(arrays))
     extra = sorted(set(arrays) - set(expected))
     if missing or extra:
