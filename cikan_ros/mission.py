@@ -104,7 +104,7 @@ class MissionResult:
         tau_zero = bool(self.tau[-1] == 0.0)
         docked = bool(dist[-1] < cfg.mission.dock_distance_km and speed[-1] < cfg.mission.dock_speed_kmps)
         walls = np.array([r.wall_s for r in self.updates]) * 1e3
-        active = np.array([r.wall_s for r in self.updates if r.path != "zero"]) * 1e3
+        active = np.array([r.wall_s for r in self.updates if r.active]) * 1e3
         dv = cfg.control.period_s * float(np.sum(np.linalg.norm(self.u, axis=1)))
         h1n = m.h1_normalised[np.isfinite(m.h1_normalised)]
         h3 = m.h3[np.isfinite(m.h3)]
@@ -134,8 +134,59 @@ class MissionResult:
             "active_update_ms_mean": float(active.mean()) if active.size else 0.0,
             "active_update_ms_max": float(active.max()) if active.size else 0.0,
             "verify_calls": int(self.initial.verify_calls + sum(r.verify_calls for r in self.updates)),
+            "active_verify_calls_max": max((r.verify_calls for r in self.updates if r.active), default=0),
             "duration_s": float(self.t[-1] - self.t[0]),
         }
+
+
+    def update_states(self, active_only: bool = True) -> list["UpdateState"]:
+        """What the governor was given at each update (after the first instant) and its answer."""
+        return update_states(self.config, self.t, self.x_d, self.x_c,
+                             [(r.k, r.tau_prev, r.tau_s) for r in self.updates], active_only)
+
+
+@dataclass(frozen=True)
+class UpdateState:
+    """One update: index k, time t (s since epoch), x_d, x_c (km, km/s, as the governor saw them,
+    through SI), the previous shift tau_prev and the answer tau (s). Active when tau_prev < 0."""
+
+    k: int
+    t: float
+    x_d: NDArray
+    x_c: NDArray
+    tau_prev: float
+    tau: float
+
+    @property
+    def active(self) -> bool:
+        return self.tau_prev < 0.0
+
+
+def update_states(cfg: Config, t: NDArray, x_d: NDArray, x_c: NDArray,
+                  updates: list[tuple[int, float, float]], active_only: bool = True
+                  ) -> list[UpdateState]:
+    """Update states of a run from its per-step arrays and its updates (k, tau_prev, tau): the
+    one place that maps an update index to its control step and decides what is active."""
+    per_update = round(cfg.tsg.update_period_s / cfg.control.period_s)
+    out = []
+    for k, tau_prev, tau in updates:
+        if active_only and not tau_prev < 0.0:
+            continue
+        step = int(k) * per_update
+        out.append(UpdateState(int(k), float(t[step]), through_si(x_d[step]), through_si(x_c[step]),
+                               float(tau_prev), float(tau)))
+    return out
+
+
+def errors_against_optimal(predictor: Predictor, states: list[UpdateState]) -> NDArray:
+    """tau - pi* at each active update state, pi* solved there from the same tau_prev (SPEC §9)."""
+    return np.array([s.tau - predictor.optimal_shift(s.x_d, s.t, s.tau_prev)[0]
+                     for s in states if s.active])
+
+
+def rmse(errors: NDArray) -> float:
+    """Root mean square of errors (NaN when there are none)."""
+    return float(np.sqrt(np.mean(np.square(errors)))) if len(errors) else math.nan
 
 
 def run_mission(governor: Governor, x_d0: NDArray, plant: Plant | None = None) -> MissionResult:

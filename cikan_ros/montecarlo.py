@@ -55,6 +55,8 @@ def save_run(res: MissionResult, seed: int, json_path: Path, npz_path: Path) -> 
         npz_path, t=res.t, x_d=res.x_d, x_c=res.x_c, u=res.u, tau=res.tau,
         h1=res.margins.h1, h1_normalised=res.margins.h1_normalised, h2=res.margins.h2, h3=res.margins.h3,
         update_t=res.update_t, update_tau=np.array([r.tau_s for r in res.updates]),
+        update_k=np.array([r.k for r in res.updates], dtype=np.int64),
+        update_tau_prev=np.array([r.tau_prev for r in res.updates]),
         update_path=np.array([r.path for r in res.updates], dtype=str),
         update_wall_s=np.array([r.wall_s for r in res.updates]),
         update_verify_calls=np.array([r.verify_calls for r in res.updates]),

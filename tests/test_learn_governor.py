@@ -174,16 +174,19 @@ def test_decisions_follow_the_keep_rule(predictor) -> None:
             feat = features_one(x_d, x_c, "vnb", np.empty(12))
             tau_c = quantise_shift(-math.exp(gov.net.forward_one(gov.net.normalise(feat))))
             k = update_index(t, predictor.config.tsg.update_period_s)
+            b = lc.fallback_budget if k % lc.probe_every else lc.probe_budget
             if tau_prev + lc.min_step_s <= tau_c <= 0:
                 if predictor.verify(x_d, t, tau_c):
                     tau, path, calls = tau_c, PATH_NN, 1
+                elif b == 0:
+                    tau, path, calls = tau_prev, PATH_KEEP, 1
                 else:
-                    tau, c = predictor.bisect(x_d, t, tau_prev, tau_c, budget=lc.fallback_budget)
+                    tau, c = predictor.bisect(x_d, t, tau_prev, tau_c, budget=b)
                     path, calls = PATH_NN_BISECT, 1 + c
-            elif k % lc.probe_every:
+            elif b == 0:
                 tau, path, calls = tau_prev, PATH_KEEP, 0
             else:
-                tau, calls = predictor.bisect(x_d, t, tau_prev, 0.0, budget=lc.probe_budget)
+                tau, calls = predictor.bisect(x_d, t, tau_prev, 0.0, budget=b)
                 path = PATH_PROBE
             if tau < 0 and -tau <= snap:
                 calls += 1
@@ -230,4 +233,5 @@ def test_adversarial_networks_dock_under_the_keep_rule(predictor, case: str) -> 
         if case == "always-keep":
             assert paths <= {PATH_KEEP, PATH_PROBE, PATH_VERIFY_ZERO}
         if case == "too-close-to-zero":
-            assert paths <= {PATH_NN_BISECT, PATH_VERIFY_ZERO}
+            # progress comes from the scheduled searches until -1e-4 s itself becomes feasible
+            assert PATH_NN_BISECT in paths and paths <= {PATH_NN_BISECT, PATH_KEEP, PATH_NN, PATH_VERIFY_ZERO}

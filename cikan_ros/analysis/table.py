@@ -19,10 +19,10 @@ from typing import Any
 import numpy as np
 
 from ..config import config_from_flat
-from ..governor import PATH_INITIAL, PATH_NN, PATH_ZERO
+from ..governor import PATH_NN
+from ..mission import errors_against_optimal, rmse, update_states
 from ..montecarlo import load_run_arrays, summarise
 from ..tsg import Predictor
-from ..units import through_si
 
 #: The paper's Table 2 (SPEC §9): complexity, L_train, L_val (x1e-3), RMSE s, time mean/worst s, dV km/s.
 PAPER = {
@@ -56,30 +56,29 @@ def rmse_against_optimal(runs: list[tuple[dict[str, Any], dict[str, Any], Path]]
     """(RMSE over all updates, RMSE over active updates, NN acceptance rate) of a learned governor.
 
     pi* is the conventional TSG answer at the state the governor saw (through SI), from the same
-    tau_prev. The acceptance rate counts updates whose network proposal was returned (path "nn")
-    among the updates that consulted the network (every path but "zero").
+    tau_prev (``mission.errors_against_optimal``; pi* = 0 with no prediction when tau_prev = 0).
+    The acceptance rate counts updates whose network proposal was returned (path "nn") among the
+    active updates (every one of them consults the network).
     """
     pred: Predictor | None = None
-    err_all: list[float] = []
-    err_active: list[float] = []
-    consulted = accepted = 0
+    err_active: list[np.ndarray] = []
+    err_zero: list[np.ndarray] = []
+    active = accepted = 0
     for _, flat, npz in runs:
+        cfg = config_from_flat(flat)
         if pred is None:
-            pred = Predictor.from_config(config_from_flat(flat))
+            pred = Predictor.from_config(cfg)
         a = load_run_arrays(npz)
-        tc = float(flat["control.period_s"])
-        for t_u, tau_u, path in zip(a["update_t"], a["update_tau"], a["update_path"]):
-            k = int(round(float(t_u) / tc))
-            tau_prev = float(a["tau"][k - 1])
-            if path not in (PATH_ZERO, PATH_INITIAL):
-                consulted += 1
-                accepted += path == PATH_NN
-            star = 0.0 if tau_prev == 0.0 else pred.optimal_shift(through_si(a["x_d"][k]), float(a["t"][k]), tau_prev)[0]
-            err_all.append(float(tau_u) - star)
-            if tau_prev < 0.0:
-                err_active.append(float(tau_u) - star)
-    rms = lambda e: float(math.sqrt(np.mean(np.square(e)))) if e else math.nan  # noqa: E731
-    return rms(err_all), rms(err_active), (accepted / consulted if consulted else math.nan)
+        updates = list(zip(a["update_k"], a["update_tau_prev"], a["update_tau"]))
+        states = update_states(cfg, a["t"], a["x_d"], a["x_c"], updates, active_only=False)
+        err_active.append(errors_against_optimal(pred, states))
+        err_zero.append(np.array([s.tau for s in states if not s.active]))
+        is_active = a["update_tau_prev"] < 0.0
+        active += int(is_active.sum())
+        accepted += int(np.sum(is_active & (a["update_path"] == PATH_NN)))
+    e_active = np.concatenate(err_active) if err_active else np.empty(0)
+    e_all = np.concatenate([e_active] + err_zero) if err_zero else e_active
+    return rmse(e_all), rmse(e_active), (accepted / active if active else math.nan)
 
 
 def _card(name: str) -> dict[str, Any] | None:

@@ -6,7 +6,7 @@ its position spread sigma ~ U[sigma_min, sigma_max] km, its split (train/val/tes
 draw against the split fractions) and the seed of its start (``mission.sample_start``). Each
 mission is one conventional closed loop (``mission.run_mission``); every active update
 (tau_{k-1} < 0) whose answer tau* = pi*(x) is strictly negative gives one label, with the states
-as the governor saw them (through SI, as in ``cikan_ros.bench.collect_states``). The dataset is
+as the governor saw them (through SI, ``MissionResult.update_states``). The dataset is
 the labels of missions 0, 1, 2, ... in order, cut at exactly N labels, so the result depends on
 the seed only: not on the number of workers nor on where they run (local processes or Dask).
 """
@@ -30,7 +30,6 @@ from ..governor import ConventionalGovernor
 from ..mission import MissionResult, run_mission, sample_start
 from ..parallel import ordered_map
 from ..tsg import Predictor
-from ..units import through_si
 from .errors import DatasetError
 
 #: Parquet columns: state components as the governor saw them (km, km/s, ECI), labels in s.
@@ -76,31 +75,20 @@ def mission_plan(spec: DatasetSpec, mission: int) -> tuple[float, str, int]:
 
 
 def update_labels(res: MissionResult) -> dict[str, NDArray]:
-    """Labels of one conventional mission: every update with tau_{k-1} < 0 and tau* < 0.
+    """Labels of one conventional mission: every active update (tau_{k-1} < 0) with tau* < 0.
 
-    States are those the governor was given (``through_si``), as ``bench.collect_states`` takes
-    them; tau* is the governor's answer there, i.e. pi* over [tau_{k-1}, 0].
+    States are those the governor was given (through SI; ``MissionResult.update_states``, as the
+    benchmark takes them); tau* is the governor's answer there, i.e. pi* over [tau_{k-1}, 0].
     """
-    tc = res.config.control.period_s
-    rows_t, rows_k, rows_xd, rows_xc, rows_prev, rows_tau = [], [], [], [], [], []
-    for t_u, rec in zip(res.update_t, res.updates):
-        k = int(round(t_u / tc))
-        tau_prev = float(res.tau[k - 1])
-        if tau_prev < 0.0 and rec.tau_s < 0.0:
-            rows_t.append(float(res.t[k]))
-            rows_k.append(int(round(t_u / res.config.tsg.update_period_s)))
-            rows_xd.append(through_si(res.x_d[k]))
-            rows_xc.append(through_si(res.x_c[k]))
-            rows_prev.append(tau_prev)
-            rows_tau.append(rec.tau_s)
-    n = len(rows_t)
+    states = [s for s in res.update_states() if s.tau < 0.0]
+    n = len(states)
     return {
-        "t_s": np.array(rows_t, dtype=float),
-        "update_k": np.array(rows_k, dtype=np.int64),
-        "x_d": np.array(rows_xd, dtype=float).reshape(n, 6),
-        "x_c": np.array(rows_xc, dtype=float).reshape(n, 6),
-        "tau_prev_s": np.array(rows_prev, dtype=float),
-        "tau_star_s": np.array(rows_tau, dtype=float),
+        "t_s": np.array([s.t for s in states], dtype=float),
+        "update_k": np.array([s.k for s in states], dtype=np.int64),
+        "x_d": np.array([s.x_d for s in states], dtype=float).reshape(n, 6),
+        "x_c": np.array([s.x_c for s in states], dtype=float).reshape(n, 6),
+        "tau_prev_s": np.array([s.tau_prev for s in states], dtype=float),
+        "tau_star_s": np.array([s.tau for s in states], dtype=float),
     }
 
 

@@ -5,16 +5,17 @@ and share the zero rule (τ_prev = 0 -> 0 with no prediction, path "zero") and t
 (τ < 0, |τ| <= tsg.zero_snap_s and Verify(0) -> 0, path "verify-zero"). τ_c is the network's
 proposal -exp(NN) on the nanosecond grid (NaN when the output is not finite or out of range).
 
-``keep`` (default; k = round(t_k / P_upd), B = learned.fallback_budget, S = learned.probe_every,
-B_p = learned.probe_budget, δ = learned.min_step_s; bisect_B = bisection that stops after B
-Verify calls and returns its verified lower end)::
+``keep`` (default; k = round(t_k / P_upd), δ = learned.min_step_s, S = learned.probe_every;
+the search budget is b = learned.probe_budget when k % S == 0, else learned.fallback_budget;
+bisect_b = bisection that stops after b Verify calls and returns its verified lower end)::
 
-  τ_c >= τ_prev + δ and τ_c <= 0:
+  τ_c >= τ_prev + δ and τ_c <= 0 (the network proposes progress):
       Verify(τ_c)                 -> τ_c                                            [path "nn"]
-      else                        -> bisect_B(lo = τ_prev, hi = τ_c)                [path "nn+bisect"]
+      else, b = 0                 -> τ_prev                                         [path "keep"]
+      else                        -> bisect_b(lo = τ_prev, hi = τ_c)                [path "nn+bisect"]
   otherwise (no progress proposed, or τ_c unusable):
-      k % S != 0                  -> τ_prev, no prediction                          [path "keep"]
-      k % S == 0                  -> bisect_{B_p}(lo = τ_prev, hi = 0)              [path "probe"]
+      b = 0                       -> τ_prev, no prediction                          [path "keep"]
+      else                        -> bisect_b(lo = τ_prev, hi = 0)                  [path "probe"]
 
 ``paper`` (the paper's Algorithm 1)::
 
@@ -23,9 +24,9 @@ Verify calls and returns its verified lower end)::
 
 Safety (both rules): the answer passed Verify or equals τ_prev, which recursive feasibility keeps
 feasible (SPEC §5; the conventional bisection relies on the same unverified lower end). The keep
-rule's cost is bounded: one forward plus at most 1 + B Verify calls (B_p on a probe), plus the
-zero test. Progress: whatever the network outputs, every S-th update either moves by a verified
-proposal or probes [τ_prev, 0] like the conventional TSG with a budget, so τ cannot stall.
+rule's cost is bounded: one forward plus at most 1 + b Verify calls, plus the zero test.
+Progress: whatever the network outputs, every S-th update either moves by a verified proposal or
+searches below it or over [τ_prev, 0] with b = probe_budget calls, so τ cannot stall.
 
 No torch here: the network runs through :class:`cikan_ros.learn.arch.NumpyNet`.
 """
@@ -118,16 +119,19 @@ class LearnedGovernor:
         """The keep rule (without the zero test): (τ, path, Verify calls, chief cache or None)."""
         pred = self.predictor
         lc = pred.config.learned
+        budget = lc.probe_budget if k % lc.probe_every == 0 else lc.fallback_budget
         if tau_prev + lc.min_step_s <= tau_c <= 0.0:
             cache = pred.cache(t)
             if pred.verify(x_d, t, tau_c, cache):
                 return tau_c, PATH_NN, 1, cache
-            tau, c = pred.bisect(x_d, t, tau_prev, tau_c, cache, lc.fallback_budget)
+            if budget == 0:
+                return tau_prev, PATH_KEEP, 1, cache
+            tau, c = pred.bisect(x_d, t, tau_prev, tau_c, cache, budget)
             return tau, PATH_NN_BISECT, c + 1, cache
-        if k % lc.probe_every != 0:
+        if budget == 0:
             return tau_prev, PATH_KEEP, 0, None
         cache = pred.cache(t)
-        tau, c = pred.bisect(x_d, t, tau_prev, 0.0, cache, lc.probe_budget)
+        tau, c = pred.bisect(x_d, t, tau_prev, 0.0, cache, budget)
         return tau, PATH_PROBE, c, cache
 
 

@@ -10,6 +10,7 @@ governor decisions (path, Verify calls, wall time) from the governor's /diagnost
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -90,6 +91,8 @@ def mission_from_bag(path: str | Path, cfg: Config, governor: str) -> tuple[Miss
     m = margins(x_d, x_c, u, cfg.constraints, cfg.control.u_max_kmps2)
     m.h2[-1] = math.nan  # no command is applied at the final instant
     updates.sort(key=lambda p: p[0])
+    per_update = round(cfg.tsg.update_period_s / cfg.control.period_s)
+    records = [replace(r, k=k // per_update, tau_prev=float(tau[k - 1])) for k, r in updates]
     result = MissionResult(cfg, governor, t, x_d, x_c, u, tau, m, initial,
-                           np.array([t[k] for k, _ in updates]), [r for _, r in updates])
+                           np.array([t[k] for k, _ in updates]), records)
     return result, summary
