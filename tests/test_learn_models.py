@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import torch
 
-from cikan_ros.learn.arch import Arch, NumpyNet
 from cikan_ros.governor import LEARNED_NAMES
+from cikan_ros.learn.arch import Arch, NumpyNet
 from cikan_ros.learn.errors import ModelFileError
 from cikan_ros.learn.modelfile import CARD, WEIGHTS, load_model, save_model
 from cikan_ros.learn.models import TimeShiftNet
