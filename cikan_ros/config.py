@@ -200,7 +200,7 @@ class LearnedConfig:
 
     algorithm: str = "keep"
     min_step_s: float = 1e-3
-    fallback_budget: int = 0
+    fallback_budget: int = 1
     probe_every: int = 3
     probe_budget: int = 2
 

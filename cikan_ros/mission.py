@@ -105,6 +105,8 @@ class MissionResult:
         docked = bool(dist[-1] < cfg.mission.dock_distance_km and speed[-1] < cfg.mission.dock_speed_kmps)
         walls = np.array([r.wall_s for r in self.updates]) * 1e3
         active = np.array([r.wall_s for r in self.updates if r.active]) * 1e3
+        cpu = np.array([r.cpu_s for r in self.updates]) * 1e3
+        cpu_active = np.array([r.cpu_s for r in self.updates if r.active]) * 1e3
         dv = cfg.control.period_s * float(np.sum(np.linalg.norm(self.u, axis=1)))
         h1n = m.h1_normalised[np.isfinite(m.h1_normalised)]
         h3 = m.h3[np.isfinite(m.h3)]
@@ -133,6 +135,11 @@ class MissionResult:
             "update_ms_max": float(walls.max()) if walls.size else 0.0,
             "active_update_ms_mean": float(active.mean()) if active.size else 0.0,
             "active_update_ms_max": float(active.max()) if active.size else 0.0,
+            # CPU time of the deciding thread (wall time counts waits for a core on a busy machine)
+            "update_cpu_ms_mean": float(cpu.mean()) if cpu.size else 0.0,
+            "update_cpu_ms_max": float(cpu.max()) if cpu.size else 0.0,
+            "active_update_cpu_ms_mean": float(cpu_active.mean()) if cpu_active.size else 0.0,
+            "active_update_cpu_ms_max": float(cpu_active.max()) if cpu_active.size else 0.0,
             "verify_calls": int(self.initial.verify_calls + sum(r.verify_calls for r in self.updates)),
             "active_verify_calls_max": max((r.verify_calls for r in self.updates if r.active), default=0),
             "duration_s": float(self.t[-1] - self.t[0]),

@@ -174,7 +174,8 @@ def test_decisions_follow_the_keep_rule(predictor) -> None:
             feat = features_one(x_d, x_c, "vnb", np.empty(12))
             tau_c = quantise_shift(-math.exp(gov.net.forward_one(gov.net.normalise(feat))))
             k = update_index(t, predictor.config.tsg.update_period_s)
-            b = lc.fallback_budget if k % lc.probe_every else lc.probe_budget
+            scheduled = k % lc.probe_every == 0
+            b = lc.probe_budget if scheduled else lc.fallback_budget
             if tau_prev + lc.min_step_s <= tau_c <= 0:
                 if predictor.verify(x_d, t, tau_c):
                     tau, path, calls = tau_c, PATH_NN, 1
@@ -183,10 +184,10 @@ def test_decisions_follow_the_keep_rule(predictor) -> None:
                 else:
                     tau, c = predictor.bisect(x_d, t, tau_prev, tau_c, budget=b)
                     path, calls = PATH_NN_BISECT, 1 + c
-            elif b == 0:
+            elif not scheduled:
                 tau, path, calls = tau_prev, PATH_KEEP, 0
             else:
-                tau, calls = predictor.bisect(x_d, t, tau_prev, 0.0, budget=b)
+                tau, calls = predictor.bisect(x_d, t, tau_prev, 0.0, budget=lc.probe_budget)
                 path = PATH_PROBE
             if tau < 0 and -tau <= snap:
                 calls += 1

@@ -5,17 +5,18 @@ and share the zero rule (τ_prev = 0 -> 0 with no prediction, path "zero") and t
 (τ < 0, |τ| <= tsg.zero_snap_s and Verify(0) -> 0, path "verify-zero"). τ_c is the network's
 proposal -exp(NN) on the nanosecond grid (NaN when the output is not finite or out of range).
 
-``keep`` (default; k = round(t_k / P_upd), δ = learned.min_step_s, S = learned.probe_every;
-the search budget is b = learned.probe_budget when k % S == 0, else learned.fallback_budget;
-bisect_b = bisection that stops after b Verify calls and returns its verified lower end)::
+``keep`` (default; k = round(t_k / P_upd), δ = learned.min_step_s, S = learned.probe_every,
+B = learned.fallback_budget, B_p = learned.probe_budget; the update is *scheduled* when
+k % S == 0; bisect_b = bisection that stops after b Verify calls and returns its verified lower
+end, b = 0 meaning τ_prev)::
 
-  τ_c >= τ_prev + δ and τ_c <= 0 (the network proposes progress):
+  τ_prev + δ <= τ_c <= 0 (the network proposes progress):
       Verify(τ_c)                 -> τ_c                                            [path "nn"]
-      else, b = 0                 -> τ_prev                                         [path "keep"]
-      else                        -> bisect_b(lo = τ_prev, hi = τ_c)                [path "nn+bisect"]
+      else                        -> bisect_b(lo = τ_prev, hi = τ_c),
+                                     b = B_p if scheduled else B          [path "nn+bisect" or "keep"]
   otherwise (no progress proposed, or τ_c unusable):
-      b = 0                       -> τ_prev, no prediction                          [path "keep"]
-      else                        -> bisect_b(lo = τ_prev, hi = 0)                  [path "probe"]
+      not scheduled               -> τ_prev, no prediction                          [path "keep"]
+      scheduled                   -> bisect_{B_p}(lo = τ_prev, hi = 0)              [path "probe"]
 
 ``paper`` (the paper's Algorithm 1)::
 
@@ -24,9 +25,9 @@ bisect_b = bisection that stops after b Verify calls and returns its verified lo
 
 Safety (both rules): the answer passed Verify or equals τ_prev, which recursive feasibility keeps
 feasible (SPEC §5; the conventional bisection relies on the same unverified lower end). The keep
-rule's cost is bounded: one forward plus at most 1 + b Verify calls, plus the zero test.
-Progress: whatever the network outputs, every S-th update either moves by a verified proposal or
-searches below it or over [τ_prev, 0] with b = probe_budget calls, so τ cannot stall.
+rule's cost is bounded: one forward plus at most 1 + max(B, B_p) Verify calls, plus the zero
+test. Progress: whatever the network outputs, every S-th update either moves by a verified
+proposal or searches below it or over [τ_prev, 0] with B_p calls, so τ cannot stall.
 
 No torch here: the network runs through :class:`cikan_ros.learn.arch.NumpyNet`.
 """
@@ -34,7 +35,6 @@ No torch here: the network runs through :class:`cikan_ros.learn.arch.NumpyNet`.
 from __future__ import annotations
 
 import math
-import time
 from pathlib import Path
 from typing import Iterable
 
@@ -42,7 +42,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..governor import (PATH_BISECT, PATH_INITIAL, PATH_KEEP, PATH_NN, PATH_NN_BISECT, PATH_PROBE,
-                        PATH_VERIFY_ZERO, PATH_ZERO, UpdateRecord, initial_update, update_index)
+                        PATH_VERIFY_ZERO, PATH_ZERO, UpdateRecord, initial_update, make_record,
+                        start_clock, update_index)
 from ..tsg import ChiefCache, Predictor, quantise_shift
 from .arch import NumpyNet
 from .features import features_one
@@ -85,11 +86,11 @@ class LearnedGovernor:
         return initial_update(self.predictor, x_d, t)
 
     def update(self, x_d: ArrayLike, x_c: ArrayLike, t: float, tau_prev: float) -> UpdateRecord:
-        start = time.perf_counter()
+        started = start_clock()
         pred = self.predictor
         k = update_index(t, pred.config.tsg.update_period_s)
         if tau_prev == 0.0:
-            return UpdateRecord(0.0, PATH_ZERO, 0, time.perf_counter() - start, k, tau_prev)
+            return make_record(started, 0.0, PATH_ZERO, 0, k, tau_prev)
         tau_c = self.proposal(x_d, x_c, tau_prev)
         if pred.config.learned.algorithm == "paper":
             tau, path, calls, cache = self._paper(x_d, t, tau_prev, tau_c)
@@ -99,7 +100,7 @@ class LearnedGovernor:
             calls += 1
             if pred.verify(x_d, t, 0.0, cache or pred.cache(t)):
                 tau, path = 0.0, PATH_VERIFY_ZERO
-        return UpdateRecord(tau, path, calls, time.perf_counter() - start, k, tau_prev)
+        return make_record(started, tau, path, calls, k, tau_prev)
 
     def _paper(self, x_d: ArrayLike, t: float, tau_prev: float, tau_c: float
                ) -> tuple[float, str, int, ChiefCache]:
@@ -119,19 +120,20 @@ class LearnedGovernor:
         """The keep rule (without the zero test): (τ, path, Verify calls, chief cache or None)."""
         pred = self.predictor
         lc = pred.config.learned
-        budget = lc.probe_budget if k % lc.probe_every == 0 else lc.fallback_budget
+        scheduled = k % lc.probe_every == 0
         if tau_prev + lc.min_step_s <= tau_c <= 0.0:
             cache = pred.cache(t)
             if pred.verify(x_d, t, tau_c, cache):
                 return tau_c, PATH_NN, 1, cache
+            budget = lc.probe_budget if scheduled else lc.fallback_budget
             if budget == 0:
                 return tau_prev, PATH_KEEP, 1, cache
             tau, c = pred.bisect(x_d, t, tau_prev, tau_c, cache, budget)
             return tau, PATH_NN_BISECT, c + 1, cache
-        if budget == 0:
+        if not scheduled or lc.probe_budget == 0:
             return tau_prev, PATH_KEEP, 0, None
         cache = pred.cache(t)
-        tau, c = pred.bisect(x_d, t, tau_prev, 0.0, cache, budget)
+        tau, c = pred.bisect(x_d, t, tau_prev, 0.0, cache, lc.probe_budget)
         return tau, PATH_PROBE, c, cache
 
 
