@@ -140,3 +140,38 @@ def test_tau_prev_network_trains_and_flies(data_path: Path, tmp_path: Path, pred
     assert gov.proposal(x_d, x_c, float(row["tau_prev_s"])) == expected
     rec = gov.update(x_d, x_c, float(row["t_s"]), float(row["tau_prev_s"]))
     assert rec.tau_s == row["tau_prev_s"] or predictor.verify(x_d, float(row["t_s"]), rec.tau_s)
+
+
+def test_models_page_tables_come_from_cards_and_data(data_path: Path, tmp_path: Path) -> None:
+    """`cikan models`: one row per model directory from its card; the breakdown's groups hold
+    the stated shares of the split and their losses are the paper's loss on those labels."""
+    from cikan_ros.learn.arch import NumpyNet
+    from cikan_ros.learn.cards import loss_breakdown, models_page, shipped_models
+    from cikan_ros.learn.dataset import read_parquet
+    from cikan_ros.learn.features import features
+    from cikan_ros.learn.loss import cinn_log_loss_np
+
+    data = load_data(data_path)
+    for name, features_kind in (("a", "vnb"), ("b", "vnb-prev")):
+        train(Arch("relu", 8, 2, features=features_kind),
+              load_data(data_path, features_kind) if features_kind != "vnb" else data,
+              TrainConfig(epochs=1, batch=64), tmp_path / "models" / name, None, progress=False)
+    models = shipped_models(tmp_path / "models")
+    page, meta = models_page("# intro\n", data_path, "val", tmp_path / "models")
+    assert meta["models"] == 2 and page.startswith("# intro")
+    assert "| a | vnb |" in page and "| b | vnb-prev |" in page
+    table = loss_breakdown(models, data_path, "val")
+    rows = {line.split(" | ")[0].lstrip("| "): line for line in table.splitlines() if line.startswith("| ")}
+    df, _ = read_parquet(data_path)
+    val = df[df["split"] == "val"]
+    tau, prev = val["tau_star_s"].to_numpy(), val["tau_prev_s"].to_numpy()
+    y = np.log(-tau)
+    m = models[0]
+    net = NumpyNet(m.arch, m.tensors)
+    pred = net.forward(net.normalise(features(val[[f"xd{i}" for i in range(6)]].to_numpy(),
+                                              val[[f"xc{i}" for i in range(6)]].to_numpy(), "vnb")))
+    hold = (tau - prev) <= 1e-4
+    assert rows["all"].split(" | ")[2] == f"{cinn_log_loss_np(pred, y):.3e}"
+    assert rows["move"].split(" | ")[1] == f"{np.mean(~hold):.1%}"
+    if (~hold).any():
+        assert rows["move"].split(" | ")[2] == f"{cinn_log_loss_np(pred[~hold], y[~hold]):.3e}"

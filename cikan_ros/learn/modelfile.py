@@ -108,8 +108,8 @@ def save_model(directory: str | Path, arch: Arch, tensors: Mapping[str, Any],
 def resolve(name_or_path: str | Path) -> Path:
     """A family name (``models/<family>/``), a model directory, or a file inside one."""
     s = str(name_or_path)
-    if s in FAMILIES and not Path(s).exists():
-        d = MODELS_DIR / s
+    if (s in FAMILIES or (MODELS_DIR / s / CARD).exists()) and not Path(s).exists():
+        d = MODELS_DIR / s  # a shipped model: models/<family>/ or another directory there
     else:
         p = Path(s)
         d = p.parent if p.is_file() or p.name in (WEIGHTS, CARD) else p
