@@ -196,6 +196,31 @@ def to_markdown(rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def summary(rows: list[dict[str, Any]]) -> str:
+    """What the table shows, per update rule, as ranges over the learned families (Markdown
+    bullets, generated so that the prose around the table never restates a number by hand)."""
+    def span(key: str, fmt: str, rs: list[dict[str, Any]]) -> str:
+        v = [r[key] for r in rs if r[key] is not None and math.isfinite(r[key])]
+        return "-" if not v else f"{format(min(v), fmt)} to {format(max(v), fmt)}"
+
+    out = []
+    learned = [r for r in rows if r["model"] != "conventional"]
+    for rule in dict.fromkeys(r["rule"] for r in learned):
+        rs = [r for r in learned if r["rule"] == rule]
+        ok = sum(r["successes"] for r in rs)
+        runs = sum(r["runs"] for r in rs)
+        out.append(
+            f"- **{rule} rule** ({', '.join(split_rule(r['model'])[0] for r in rs)}): "
+            f"{ok}/{runs} runs docked, {sum(r['violations'] for r in rs)} violations; "
+            f"active-phase speed-up {span('active_speedup_mean', '.2f', rs)}x mean and "
+            f"{span('active_speedup_worst', '.2f', rs)}x worst; all-updates speed-up "
+            f"{span('speedup_mean', '.2f', rs)}x mean and {span('speedup_worst', '.2f', rs)}x worst; "
+            f"ΔV {span('delta_v_vs_conventional', '+.1%', rs)} and mean time to τ = 0 "
+            f"{span('t_tau_zero_vs_conventional', '+.1%', rs)} against the conventional TSG; "
+            f"active-phase RMSE against π* {span('rmse_tau_active_s', '.3f', rs)} s.")
+    return "\n".join(out) + "\n"
+
+
 def to_csv(rows: list[dict[str, Any]]) -> str:
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=list(COLUMNS))
