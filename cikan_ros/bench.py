@@ -3,8 +3,10 @@
 States come from conventional-TSG missions (the nominal start and Monte Carlo seeds 1..N-1).
 Only active-phase updates are timed (tau_prev < 0: the states where a governor decides
 something, SPEC §9); the first-instant search is timed separately. Each state is timed
-``repeats`` times and its median kept, so one descheduling does not make a worst case.
-Ratios between governors are taken in one run on the same states.
+``repeats`` times and its median kept. Update times are the CPU time of the calling thread
+(``time.thread_time``): on a shared machine wall time also counts the time the process waits for
+a core, which made single updates look 20x slower under load (measured); the computation is
+what the figures compare. Ratios between governors are taken in one run on the same states.
 """
 
 from __future__ import annotations
@@ -18,21 +20,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .config import Config
-from .governor import ConventionalGovernor, Governor
-from .mission import nominal_start, run_mission, sample_start
+from .governor import ConventionalGovernor, Governor, UpdateRecord
+from .mission import UpdateState, nominal_start, run_mission, sample_start
 from .tsg import Predictor
 from .units import through_si
-
-
-@dataclass(frozen=True)
-class UpdateState:
-    """What a governor is given at one active update: x_d, x_c (km, km/s; as seen through SI),
-    t (s since epoch) and tau_prev < 0 (s)."""
-
-    x_d: NDArray
-    x_c: NDArray
-    t: float
-    tau_prev: float
 
 
 @dataclass
@@ -54,7 +45,6 @@ def collect_states(cfg: Config, n_missions: int = 6) -> BenchStates:
     gov = ConventionalGovernor.from_config(cfg)
     pred = gov.predictor
     run_mission(gov, nominal_start(pred))  # compile (or load cached) kernels before timing
-    tc = cfg.control.period_s
     updates: list[UpdateState] = []
     starts: list[NDArray] = []
     walls: list[float] = []
@@ -64,27 +54,30 @@ def collect_states(cfg: Config, n_missions: int = 6) -> BenchStates:
         res = run_mission(gov, x0)
         walls.append(time.perf_counter() - start)
         starts.append(x0)
-        for t_u in res.update_t:
-            k = int(round(t_u / tc))
-            if res.tau[k - 1] < 0.0:
-                updates.append(UpdateState(through_si(res.x_d[k]), through_si(res.x_c[k]),
-                                           float(res.t[k]), float(res.tau[k - 1])))
+        updates += res.update_states()
     return BenchStates(updates, starts, walls)
+
+
+def timed_update(governor: Governor, s: UpdateState) -> tuple[UpdateRecord, float]:
+    """One update at state s and its CPU time (s) in this thread."""
+    start = time.thread_time()
+    rec = governor.update(s.x_d, s.x_c, s.t, s.tau_prev)
+    return rec, time.thread_time() - start
 
 
 def time_updates(governor: Governor, states: list[UpdateState], repeats: int = 3
                  ) -> tuple[NDArray, NDArray, list[str], NDArray]:
-    """Per state: median wall time (s) of ``repeats`` updates, tau, path, Verify calls."""
+    """Per state: median CPU time (s) of ``repeats`` updates, tau, path, Verify calls."""
     walls = np.empty(len(states))
     taus = np.empty(len(states))
     calls = np.empty(len(states))
     paths: list[str] = []
     for i, s in enumerate(states):
-        runs = [governor.update(s.x_d, s.x_c, s.t, s.tau_prev) for _ in range(repeats)]
-        walls[i] = statistics.median(r.wall_s for r in runs)
-        taus[i] = runs[0].tau_s
-        calls[i] = runs[0].verify_calls
-        paths.append(runs[0].path)
+        runs = [timed_update(governor, s) for _ in range(repeats)]
+        walls[i] = statistics.median(cpu for _, cpu in runs)
+        taus[i] = runs[0][0].tau_s
+        calls[i] = runs[0][0].verify_calls
+        paths.append(runs[0][0].path)
     return walls, taus, paths, calls
 
 
@@ -98,15 +91,15 @@ def conventional_section(cfg: Config, states: BenchStates, repeats: int) -> dict
     for x0 in states.starts:
         runs = []
         for _ in range(repeats):
-            start = time.perf_counter()
+            start = time.thread_time()
             pred.initial_shift(through_si(x0), 0.0)
-            runs.append(time.perf_counter() - start)
+            runs.append(time.thread_time() - start)
         init.append(statistics.median(runs))
     verify = []
     for s in states.updates:
-        start = time.perf_counter()
+        start = time.thread_time()
         pred.verify(s.x_d, s.t, s.tau_prev)  # tau_prev is feasible: a full rollout to the terminal set
-        verify.append(time.perf_counter() - start)
+        verify.append(time.thread_time() - start)
     return {
         "n_missions": len(states.starts),
         "n_update_states": len(states.updates),

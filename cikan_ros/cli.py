@@ -23,6 +23,7 @@ COMMAND_MODULES = (
     "cikan_ros.commands.dataset",
     "cikan_ros.commands.train",
     "cikan_ros.commands.tune",
+    "cikan_ros.commands.models",
     "cikan_ros.commands.replay",
 )
 

@@ -189,6 +189,34 @@ class MissionConfig:
                "mission.plant_substeps", self.plant_substeps, "must be an integer in [1, 10000]")
 
 
+#: Update rules of learned governors: the default ("keep", SPEC §8 beyond the paper) and the
+#: paper's Algorithm 1 ("paper").
+LEARNED_ALGORITHMS = ("keep", "paper")
+
+
+@dataclass(frozen=True)
+class LearnedConfig:
+    """Update rule of the learned governors (SPEC §8): which rule, and the keep rule's settings."""
+
+    algorithm: str = "keep"
+    min_step_s: float = 1e-3
+    fallback_budget: int = 1
+    probe_every: int = 3
+    probe_budget: int = 2
+
+    def __post_init__(self) -> None:
+        _check(self.algorithm in LEARNED_ALGORITHMS, "learned.algorithm", self.algorithm,
+               f"must be one of {LEARNED_ALGORITHMS}")
+        _check(math.isfinite(self.min_step_s) and self.min_step_s >= 0, "learned.min_step_s",
+               self.min_step_s, "must be >= 0")
+        for name in ("fallback_budget", "probe_budget"):
+            v = getattr(self, name)
+            _check(isinstance(v, int) and 0 <= v <= 64, f"learned.{name}", v,
+                   "must be an integer in [0, 64]")
+        _check(isinstance(self.probe_every, int) and self.probe_every >= 1, "learned.probe_every",
+               self.probe_every, "must be an integer >= 1")
+
+
 @dataclass(frozen=True)
 class Config:
     """All parameters of one mission; cross-group consistency is checked here."""
@@ -198,6 +226,7 @@ class Config:
     constraints: ConstraintConfig = field(default_factory=ConstraintConfig)
     tsg: TSGConfig = field(default_factory=TSGConfig)
     mission: MissionConfig = field(default_factory=MissionConfig)
+    learned: LearnedConfig = field(default_factory=LearnedConfig)
 
     def __post_init__(self) -> None:
         ratio = self.tsg.update_period_s / self.control.period_s
@@ -228,7 +257,7 @@ class Config:
 
 _GROUP_CLASSES = {
     "orbit": OrbitConfig, "control": ControlConfig, "constraints": ConstraintConfig,
-    "tsg": TSGConfig, "mission": MissionConfig,
+    "tsg": TSGConfig, "mission": MissionConfig, "learned": LearnedConfig,
 }
 
 

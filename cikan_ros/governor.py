@@ -7,13 +7,15 @@ The learned governor (Algorithm 1, ``cikan_ros.learn``) implements the same prot
 
 from __future__ import annotations
 
+import gc
+import math
 import time
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 from numpy.typing import ArrayLike
 
-from .config import Config
+from .config import LEARNED_ALGORITHMS, Config
 from .tsg import Predictor
 
 #: Decision paths, as published in /tsg/time_shift ``source`` and kept in mission records.
@@ -23,16 +25,51 @@ PATH_VERIFY_ZERO = "verify-zero"  # tau = 0 passed Verify
 PATH_BISECT = "bisect"          # bisection over [tau_prev, 0]
 PATH_NN = "nn"                  # network proposal passed Verify
 PATH_NN_BISECT = "nn+bisect"    # network proposal failed Verify; bisection over [tau_prev, tau_nn]
+PATH_KEEP = "keep"              # keep rule: tau_prev kept without prediction (no progress proposed)
+PATH_PROBE = "probe"            # keep rule: budgeted bisection over [tau_prev, 0] on schedule
+
+
+Clock = tuple[float, float]
+
+
+def start_clock() -> Clock:
+    """Wall and thread-CPU start times of one decision (for :func:`make_record`)."""
+    return time.perf_counter(), time.thread_time()
+
+
+def make_record(started: Clock, tau: float, path: str, calls: int, k: int = 0,
+                tau_prev: float = math.nan) -> UpdateRecord:
+    """The record of a decision started at ``started`` (wall and CPU time until now)."""
+    return UpdateRecord(tau, path, calls, time.perf_counter() - started[0], k, tau_prev,
+                        time.thread_time() - started[1])
+
+
+def update_index(t: float, update_period_s: float) -> int:
+    """k of the update at time t (s since the mission epoch): updates fall at t = k P_upd."""
+    return int(round(t / update_period_s))
 
 
 @dataclass(frozen=True)
 class UpdateRecord:
-    """One governor decision: the shift (s), the path taken, Verify calls and wall time (s)."""
+    """One governor decision: the shift (s), the path taken, Verify calls, wall time (s), the
+    update index k (0 at the first instant) and the shift tau_{k-1} it started from (NaN at k = 0).
+
+    An update is *active* when tau_{k-1} < 0: the states where a governor decides something
+    (SPEC §9); with tau_{k-1} = 0 the answer is 0 without prediction. ``cpu_s`` is the CPU time
+    of the deciding thread: unlike ``wall_s`` it does not count time spent waiting for a core on
+    a loaded machine, so campaign statistics use it."""
 
     tau_s: float
     path: str
     verify_calls: int
     wall_s: float
+    k: int = 0
+    tau_prev: float = math.nan
+    cpu_s: float = math.nan
+
+    @property
+    def active(self) -> bool:
+        return self.tau_prev < 0.0
 
 
 @runtime_checkable
@@ -53,9 +90,10 @@ class Governor(Protocol):
 
 def initial_update(predictor: Predictor, x_d: ArrayLike, t: float) -> UpdateRecord:
     """The first-instant search (SPEC §5) as a timed record; every governor starts with it."""
-    start = time.perf_counter()
+    started = start_clock()
     tau, calls = predictor.initial_shift(x_d, t)
-    return UpdateRecord(tau, PATH_INITIAL, calls, time.perf_counter() - start)
+    return make_record(started, tau, PATH_INITIAL, calls,
+                       update_index(t, predictor.config.tsg.update_period_s))
 
 
 class ConventionalGovernor:
@@ -74,26 +112,65 @@ class ConventionalGovernor:
         return initial_update(self.predictor, x_d, t)
 
     def update(self, x_d: ArrayLike, x_c: ArrayLike, t: float, tau_prev: float) -> UpdateRecord:
-        start = time.perf_counter()
+        started = start_clock()
         tau, calls = self.predictor.optimal_shift(x_d, t, tau_prev)
         path = PATH_ZERO if calls == 0 else PATH_VERIFY_ZERO if tau == 0.0 else PATH_BISECT
-        return UpdateRecord(tau, path, calls, time.perf_counter() - start)
+        return make_record(started, tau, path, calls,
+                           update_index(t, self.predictor.config.tsg.update_period_s), tau_prev)
 
 
 #: Names of the learned model families shipped in ``models/`` (see ``cikan_ros.learn``).
 LEARNED_NAMES = ("cikan", "grbf", "rswaf", "relu", "gelu")
 GOVERNOR_NAMES = ("conventional",) + LEARNED_NAMES
+#: Every governor of the results campaign: the conventional TSG, the five families under the
+#: default keep rule and under the paper's Algorithm 1.
+CAMPAIGN_NAMES = GOVERNOR_NAMES + tuple(f"{n}@paper" for n in LEARNED_NAMES)
+
+
+def split_rule(name: str) -> tuple[str, str | None]:
+    """``"cikan@paper"`` -> ("cikan", "paper"): a learned governor with its update rule named
+    (``learned.algorithm``); a name without a known rule suffix -> (name, None)."""
+    base, sep, rule = name.rpartition("@")
+    return (base, rule) if sep and rule in LEARNED_ALGORITHMS else (name, None)
+
+
+def warm_up(governor: Governor, x_d: ArrayLike, x_c: ArrayLike, t: float = 0.0) -> None:
+    """Prepare a process to fly a governor: compile or load every kernel its decisions use
+    (first-instant search, Verify, bisection, the network) by deciding once at a representative
+    state (answers discarded), then move every object alive so far out of the garbage
+    collector's reach (``gc.freeze``). Measured: with torch and the kernels loaded, a full
+    collection took 65-85 ms and landed inside an update now and then; after the freeze only
+    objects made later are scanned."""
+    pred = governor.predictor
+    first = governor.initial(x_d, x_c, t)
+    t1 = t + pred.config.tsg.update_period_s
+    tau0 = min(first.tau_s, -pred.config.tsg.tolerance_s)
+    # Every kernel entry point a decision may take (the update itself may take only one path).
+    pred.verify(x_d, t1, tau0)
+    pred.bisect(x_d, t1, tau0, 0.0, budget=1)
+    pred.optimal_shift(x_d, t1, tau0)
+    governor.update(x_d, x_c, t1, tau0)
+    gc.collect()
+    gc.freeze()
 
 
 def make_governor(name: str, cfg: Config, predictor: Predictor | None = None) -> Governor:
-    """The governor called ``name``: "conventional", a shipped model family, or a model path.
+    """The governor called ``name``: "conventional", a shipped model family, or a model path,
+    optionally with its update rule as ``NAME@keep`` / ``NAME@paper`` (else ``learned.algorithm``).
 
-    Learned governors (Algorithm 1) come from ``cikan_ros.learn``; their files are checked on
-    load and a bad file raises a CikanError naming the problem.
+    Learned governors come from ``cikan_ros.learn``; their files are checked on load and a bad
+    file raises a CikanError naming the problem.
     """
+    base, rule = split_rule(name)
+    if rule is not None and base != "conventional" and rule != cfg.learned.algorithm:
+        cfg = cfg.replace(**{"learned.algorithm": rule})
+        predictor = None
     predictor = predictor or Predictor.from_config(cfg)
-    if name == "conventional":
+    if base == "conventional":
         return ConventionalGovernor(predictor)
     from .learn.governor import load_learned_governor  # torch is imported only when needed
 
-    return load_learned_governor(name, predictor)
+    gov = load_learned_governor(base, predictor)
+    if rule is not None:
+        gov.name = f"{gov.name}@{rule}"
+    return gov

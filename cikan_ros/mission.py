@@ -140,21 +140,6 @@ class ClosedLoop(Schedule):
         return ftre_control(self.predictor.gains, float(nu_v), x_d, x_v, self.config.control.u_max_kmps2)
 
 
-def warm_up(governor: Governor, loop: ClosedLoop | None = None) -> None:
-    """Run every kind of decision once on the nominal start: the first-instant search, an update
-    from the shift it found (bisection, or the network forward and Verify of a learned governor)
-    and an update from tau = 0; so compiled kernels are loaded and the next decision is warm."""
-    loop = loop or ClosedLoop(governor.predictor)
-    x_d = nominal_start(governor.predictor)
-    x_c = governor.predictor.orbit.state(0.0)
-    first = governor.initial(x_d, x_c, 0.0)
-    t = loop.time(loop.every)
-    x_c = governor.predictor.orbit.state(t)
-    governor.update(x_d, x_c, t, first.tau_s)
-    governor.update(x_d, x_c, t, 0.0)
-    loop.command(0, first.tau_s, x_d)
-
-
 @dataclass
 class MissionResult:
     """A whole closed-loop run. Arrays are per control step k = 0 .. K (K = T_sim / T_c)."""
@@ -186,7 +171,12 @@ class MissionResult:
         tau_zero = bool(self.tau[-1] == 0.0)
         at_dock = docked(self.x_d, self.x_c, cfg)
         walls = np.array([r.wall_s for r in self.updates]) * 1e3
-        active = np.array([r.wall_s for r in self.updates if r.path != "zero"]) * 1e3
+        active = np.array([r.wall_s for r in self.updates if r.active]) * 1e3
+        cpu = np.array([r.cpu_s for r in self.updates]) * 1e3
+        cpu_active = np.array([r.cpu_s for r in self.updates if r.active]) * 1e3
+        # Wall and CPU times and Verify calls are unknown (NaN / None) in a run rebuilt from the
+        # typed topics alone (a governor without governor_node's decision records).
+        timed = all(math.isfinite(r.wall_s) for r in [self.initial, *self.updates])
         dv = cfg.control.period_s * float(np.sum(np.linalg.norm(self.u, axis=1)))
         h1n = m.h1_normalised[np.isfinite(m.h1_normalised)]
         h3 = m.h3[np.isfinite(m.h3)]
@@ -214,11 +204,66 @@ class MissionResult:
             "update_ms_max": float(walls.max()) if walls.size else 0.0,
             "active_update_ms_mean": float(active.mean()) if active.size else 0.0,
             "active_update_ms_max": float(active.max()) if active.size else 0.0,
-            # Wall times and Verify calls are NaN / None where only the typed topics were recorded.
+            # CPU time of the deciding thread (wall time counts waits for a core on a busy machine)
+            "update_cpu_ms_mean": float(cpu.mean()) if cpu.size else 0.0,
+            "update_cpu_ms_max": float(cpu.max()) if cpu.size else 0.0,
+            "active_update_cpu_ms_mean": float(cpu_active.mean()) if cpu_active.size else 0.0,
+            "active_update_cpu_ms_max": float(cpu_active.max()) if cpu_active.size else 0.0,
             "verify_calls": int(self.initial.verify_calls + sum(r.verify_calls for r in self.updates))
-            if all(math.isfinite(r.wall_s) for r in [self.initial, *self.updates]) else None,
+            if timed else None,
+            "active_verify_calls_max": max((r.verify_calls for r in self.updates if r.active), default=0)
+            if timed else None,
             "duration_s": float(self.t[-1] - self.t[0]),
         }
+
+    def update_states(self, active_only: bool = True) -> list["UpdateState"]:
+        """What the governor was given at each update (after the first instant) and its answer."""
+        return update_states(self.config, self.t, self.x_d, self.x_c,
+                             [(r.k, r.tau_prev, r.tau_s) for r in self.updates], active_only)
+
+
+@dataclass(frozen=True)
+class UpdateState:
+    """One update: index k, time t (s since epoch), x_d, x_c (km, km/s, as the governor saw them,
+    through SI), the previous shift tau_prev and the answer tau (s). Active when tau_prev < 0."""
+
+    k: int
+    t: float
+    x_d: NDArray
+    x_c: NDArray
+    tau_prev: float
+    tau: float
+
+    @property
+    def active(self) -> bool:
+        return self.tau_prev < 0.0
+
+
+def update_states(cfg: Config, t: NDArray, x_d: NDArray, x_c: NDArray,
+                  updates: list[tuple[int, float, float]], active_only: bool = True
+                  ) -> list[UpdateState]:
+    """Update states of a run from its per-step arrays and its updates (k, tau_prev, tau): the
+    one place that maps an update index to its control step and decides what is active."""
+    per_update = round(cfg.tsg.update_period_s / cfg.control.period_s)
+    out = []
+    for k, tau_prev, tau in updates:
+        if active_only and not tau_prev < 0.0:
+            continue
+        step = int(k) * per_update
+        out.append(UpdateState(int(k), float(t[step]), through_si(x_d[step]), through_si(x_c[step]),
+                               float(tau_prev), float(tau)))
+    return out
+
+
+def errors_against_optimal(predictor: Predictor, states: list[UpdateState]) -> NDArray:
+    """tau - pi* at each active update state, pi* solved there from the same tau_prev (SPEC §9)."""
+    return np.array([s.tau - predictor.optimal_shift(s.x_d, s.t, s.tau_prev)[0]
+                     for s in states if s.active])
+
+
+def rmse(errors: NDArray) -> float:
+    """Root mean square of errors (NaN when there are none)."""
+    return float(np.sqrt(np.mean(np.square(errors)))) if len(errors) else math.nan
 
 
 @dataclass(frozen=True)

@@ -42,13 +42,21 @@ T_SAMPLE, T_NSAMPLES, T_SUBSTEPS, T_TERM_POS, T_TERM_VEL = range(5)
 
 
 @nb.njit(cache=True)
+def chief_row_kernel(orb: NDArray, t: float, row: NDArray) -> None:
+    """Chief state x_c(t) and its eccentric anomaly into ``row`` (7,), solved from scratch (no warm
+    start), so a row's bits do not depend on which update computed it first."""
+    row[6] = eccentric_anomaly_kernel(orb[P_M0] + orb[P_N] * t, orb[P_E])
+    state_from_anomaly_kernel(orb, row[6], row, False)
+
+
+@nb.njit(cache=True)
 def verify_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray,
-                  x0: NDArray, t_k: float, tau: float, chief: NDArray, filled: NDArray) -> bool:
+                  x0: NDArray, t_k: float, tau: float, chief: NDArray, chief_t0: float) -> bool:
     """Verify(x0, t_k, tau) with packed orbit/gains/constraint/prediction parameters.
 
-    ``chief`` (N_p, 7) caches the chief states x_c(t_k + j T_s) and their eccentric anomalies,
-    which do not depend on tau: rows below ``filled[0]`` are valid and are reused by every Verify
-    of one update (allocate them with :func:`chief_cache`).
+    ``chief`` (>= N_p, 7) caches the chief states x_c(chief_t0 + j T_s) (chief_t0 = t_k up to
+    rounding; see :class:`ChiefCache`) and their eccentric anomalies, which do not depend on tau:
+    a row whose anomaly is NaN is computed on first use and reused by every later Verify.
     """
     ts = tp[T_SAMPLE]
     n = int(tp[T_NSAMPLES])
@@ -66,15 +74,9 @@ def verify_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray,
     ev = 0.0
     for j in range(n):
         t = t_k + j * ts
-        if j >= filled[0]:  # rows fill in order: j == filled[0]
-            if j == 0:
-                chief[0, 6] = eccentric_anomaly_kernel(orb[P_M0] + orb[P_N] * t, e)
-                state_from_anomaly_kernel(orb, chief[0, 6], chief[0], False)
-            else:
-                ep = chief[j - 1, 6]
-                _, chief[j, 6] = state_warm_kernel(orb, t, ep + dm / (1.0 - e * math.cos(ep)), chief[j], False)
-            filled[0] = j + 1
         xc = chief[j]
+        if xc[6] != xc[6]:  # NaN: not computed yet
+            chief_row_kernel(orb, chief_t0 + j * ts, xc)
         if h1_line_of_sight_kernel(x, xc, cp) > 0.0:
             return False
         if h3_approach_velocity_kernel(x, xc, cp) > 0.0:
@@ -100,30 +102,68 @@ def verify_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray,
 
 
 class ChiefCache:
-    """Chief states x_c(t_k + j T_s) along the horizon from one update time t_k, filled lazily by
-    Verify and shared by all the Verify calls of that update (they do not depend on tau)."""
+    """Chief states x_c(t + j T_s), j = 0 .. N_p - 1, for the Verify calls at one update time t
+    (they do not depend on tau), filled lazily by Verify. ``rows`` (N_p, 7): state and eccentric
+    anomaly, NaN anomaly = not computed yet; row j is the chief at ``t0 + j T_s``."""
 
-    def __init__(self, n_samples: int, t: float) -> None:
+    def __init__(self, t: float, rows: NDArray, t0: float) -> None:
         self.t = t
-        self.rows = np.empty((n_samples, 7))          # state (6) and eccentric anomaly
-        self.filled = np.zeros(1, dtype=np.int64)     # rows [0, filled) are valid
+        self.rows = rows
+        self.t0 = t0
+
+
+class ChiefTable:
+    """Chief states on the absolute sample grid t = i T_s, shared by the updates of a process.
+
+    Updates fall on that grid (t_k = k P_upd, P_upd a multiple of T_s), and the horizons of
+    consecutive updates overlap by all but P_upd / T_s samples, so a learned update that runs one
+    Verify would otherwise spend ~30 % of it on chief states (measured). Rows are computed from
+    scratch at t = i T_s (:func:`chief_row_kernel`), so they are the same bits whichever update
+    fills them; the table keeps a window of indices [i0, i0 + capacity) and moves it forward
+    (or restarts) when an update falls outside.
+    """
+
+    def __init__(self, sample_period_s: float, n_samples: int) -> None:
+        self.ts = sample_period_s
+        self.n = n_samples
+        self.i0 = 0
+        self.rows = np.full((0, 7), math.nan)
+
+    def index(self, t: float) -> int | None:
+        """Grid index i with i T_s == t exactly, or None when t is off the grid."""
+        i = round(t / self.ts)
+        return i if i * self.ts == t else None
+
+    def view(self, i: int) -> NDArray:
+        """Rows of indices [i, i + N_p) (a view into the table)."""
+        lo = i - self.i0
+        if lo < 0 or lo + self.n > len(self.rows):
+            # New window [i, i + 2 N_p), keeping the rows it shares with the old one.
+            rows = np.full((2 * self.n, 7), math.nan)
+            a, b = max(self.i0, i), min(self.i0 + len(self.rows), i + len(rows))
+            if a < b:
+                rows[a - i: b - i] = self.rows[a - self.i0: b - self.i0]
+            self.rows, self.i0, lo = rows, i, 0
+        return self.rows[lo: lo + self.n]
 
 
 @nb.njit(cache=True)
 def bisect_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, x0: NDArray, t_k: float,
-                  lo_ns: int, hi_ns: int, tol_ns: int, chief: NDArray, filled: NDArray) -> tuple[int, int, int]:
+                  lo_ns: int, hi_ns: int, tol_ns: int, chief: NDArray, chief_t0: float,
+                  max_calls: int) -> tuple[int, int, int]:
     """Bisection on [lo, hi] (integer ns) with lo feasible (not re-verified) and hi infeasible.
 
     Returns (lo, hi, Verify calls) at the end: the answer lo is feasible and within ``tol_ns`` of
-    the infeasible hi.
+    the infeasible hi, or, when ``max_calls`` (>= 0; -1: no limit) Verify calls ran out first,
+    the verified lower end reached so far (the bracket is then wider than the tolerance).
     Shifts are whole nanoseconds (the resolution of ROS time stamps), so a verified shift crosses
     the ROS boundary exactly: tau_s = tau_ns / 1e9 on both sides.
     """
     calls = 0
-    while hi_ns - lo_ns > tol_ns:
+    while hi_ns - lo_ns > tol_ns and calls != max_calls:
         mid = (lo_ns + hi_ns) // 2
         calls += 1
-        if verify_kernel(orb, table, cp, tp, x0, t_k, mid / 1e9, chief, filled):
+        if verify_kernel(orb, table, cp, tp, x0, t_k, mid / 1e9, chief, chief_t0):
             lo_ns = mid
         else:
             hi_ns = mid
@@ -133,18 +173,18 @@ def bisect_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, x0: ND
 @nb.njit(cache=True)
 def conventional_update_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, x0: NDArray,
                                t_k: float, tau_prev_ns: int, tol_ns: int, chief: NDArray,
-                               filled: NDArray) -> tuple[int, int]:
+                               chief_t0: float) -> tuple[int, int]:
     """pi* over [tau_prev, 0] (tau_prev < 0, ns): zero test first, then bisection. (tau_ns, calls)."""
-    if verify_kernel(orb, table, cp, tp, x0, t_k, 0.0, chief, filled):
+    if verify_kernel(orb, table, cp, tp, x0, t_k, 0.0, chief, chief_t0):
         return 0, 1
-    tau, _, calls = bisect_kernel(orb, table, cp, tp, x0, t_k, tau_prev_ns, 0, tol_ns, chief, filled)
+    tau, _, calls = bisect_kernel(orb, table, cp, tp, x0, t_k, tau_prev_ns, 0, tol_ns, chief, chief_t0, -1)
     return tau, calls + 1
 
 
 @nb.njit(cache=True)
 def initial_search_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, x0: NDArray,
                           t0: float, window_ns: int, grid_ns: int, tol_ns: int, chief: NDArray,
-                          filled: NDArray) -> tuple[int, int, bool]:
+                          chief_t0: float) -> tuple[int, int, bool]:
     """First-instant search (SPEC §5), times in integer ns. Returns (tau_ns, Verify calls, found).
 
     tau_near = the grid point of [-window, 0] nearest to the deputy's position; walk the grid from
@@ -163,10 +203,10 @@ def initial_search_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray
             best = m
     calls = 1
     m = best
-    if verify_kernel(orb, table, cp, tp, x0, t0, -m * grid_ns / 1e9, chief, filled):
+    if verify_kernel(orb, table, cp, tp, x0, t0, -m * grid_ns / 1e9, chief, chief_t0):
         while m > 0:  # walk toward 0 while feasible
             calls += 1
-            if not verify_kernel(orb, table, cp, tp, x0, t0, -(m - 1) * grid_ns / 1e9, chief, filled):
+            if not verify_kernel(orb, table, cp, tp, x0, t0, -(m - 1) * grid_ns / 1e9, chief, chief_t0):
                 break
             m -= 1
         if m == 0:
@@ -176,13 +216,13 @@ def initial_search_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray
         while m < n_grid:  # walk away from 0 until feasible
             m += 1
             calls += 1
-            if verify_kernel(orb, table, cp, tp, x0, t0, -m * grid_ns / 1e9, chief, filled):
+            if verify_kernel(orb, table, cp, tp, x0, t0, -m * grid_ns / 1e9, chief, chief_t0):
                 found = True
                 break
         if not found:
             return 0, calls, False
     tau, _, c = bisect_kernel(orb, table, cp, tp, x0, t0, -m * grid_ns, -(m - 1) * grid_ns, tol_ns,
-                             chief, filled)
+                             chief, chief_t0, -1)
     return tau, calls + c, True
 
 
@@ -221,9 +261,17 @@ class Predictor:
 
     def _state(self, x_d: ArrayLike, t: float) -> tuple[NDArray, float]:
         x = np.ascontiguousarray(x_d, dtype=float)
-        check_states(x, "deputy state x_d")
-        if x.shape != (6,):
-            raise StateError(f"deputy state x_d must have shape (6,), got {x.shape}")
+        # Fast path (a verify call is ~10 us of kernel when it fails early): one dot product says
+        # the state is finite and away from the origin; anything else gets the detailed check.
+        ok = x.shape == (6,)
+        if ok:
+            a, b, c, d, e, f = x.tolist()  # Python floats: no overflow warnings
+            r2 = a * a + b * b + c * c
+            ok = math.isfinite(r2 + d * d + e * e + f * f) and r2 >= 1.0
+        if not ok:
+            check_states(x, "deputy state x_d")
+            if x.shape != (6,):
+                raise StateError(f"deputy state x_d must have shape (6,), got {x.shape}")
         if not math.isfinite(t):
             raise StateError(f"time t must be finite, got {t!r}")
         return x, float(t)
@@ -234,9 +282,18 @@ class Predictor:
             raise StateError(f"time shift {name} must be finite and <= 0 s, got {tau!r}")
         return float(tau)
 
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "_table", ChiefTable(float(self.tparams[T_SAMPLE]), self.n_samples))
+
     def cache(self, t: float) -> ChiefCache:
-        """A chief-state cache for several Verify/bisect calls at the same update time t."""
-        return ChiefCache(self.n_samples, float(t))
+        """Chief states for the Verify/bisect calls at update time t: a view into the process's
+        :class:`ChiefTable` when t lies on the sample grid, else a private array."""
+        t = float(t)
+        table: ChiefTable = self._table  # type: ignore[attr-defined]
+        i = table.index(t)
+        if i is None:
+            return ChiefCache(t, np.full((self.n_samples, 7), math.nan), t)
+        return ChiefCache(t, table.view(i), i * table.ts)
 
     def _cache(self, t: float, cache: ChiefCache | None) -> ChiefCache:
         if cache is None:
@@ -253,19 +310,21 @@ class Predictor:
         x, t = self._state(x_d, t)
         c = self._cache(t, cache)
         return bool(verify_kernel(self.orbit.params, self.gains, self.cparams, self.tparams, x, t,
-                                  self._shift(tau, "tau"), c.rows, c.filled))
+                                  self._shift(tau, "tau"), c.rows, c.t0))
 
     def bisect(self, x_d: ArrayLike, t: float, lo: float, hi: float,
-               cache: ChiefCache | None = None) -> tuple[float, int]:
+               cache: ChiefCache | None = None, budget: int | None = None) -> tuple[float, int]:
         """Bisection between a feasible ``lo`` (not re-verified) and an infeasible ``hi`` (s).
 
-        Returns (tau, Verify calls): tau is feasible and within the tolerance of an infeasible shift.
+        Returns (tau, Verify calls): tau is feasible and within the tolerance of an infeasible shift,
+        or with a ``budget`` of Verify calls that ran out, the verified lower end reached (>= lo).
         """
-        lo_s, _, calls = self.bisect_bracket(x_d, t, lo, hi, cache)
+        lo_s, _, calls = self.bisect_bracket(x_d, t, lo, hi, cache, budget)
         return lo_s, calls
 
     def bisect_bracket(self, x_d: ArrayLike, t: float, lo: float, hi: float,
-                       cache: ChiefCache | None = None) -> tuple[float, float, int]:
+                       cache: ChiefCache | None = None, budget: int | None = None
+                       ) -> tuple[float, float, int]:
         """Like :meth:`bisect`, returning the final bracket (feasible lo, infeasible hi, calls)."""
         x, t = self._state(x_d, t)
         lo, hi = self._shift(lo, "lo"), self._shift(hi, "hi")
@@ -273,7 +332,8 @@ class Predictor:
             raise StateError(f"bisection bracket is empty: lo = {lo} > hi = {hi}")
         c = self._cache(t, cache)
         lo_ns, hi_ns, calls = bisect_kernel(self.orbit.params, self.gains, self.cparams, self.tparams,
-                                            x, t, to_ns(lo), to_ns(hi), self.tol_ns, c.rows, c.filled)
+                                            x, t, to_ns(lo), to_ns(hi), self.tol_ns, c.rows, c.t0,
+                                            -1 if budget is None else int(budget))
         return ns_to_seconds(lo_ns), ns_to_seconds(hi_ns), int(calls)
 
     def optimal_shift(self, x_d: ArrayLike, t: float, tau_prev: float) -> tuple[float, int]:
@@ -285,7 +345,7 @@ class Predictor:
         c = self.cache(t)
         tau, calls = conventional_update_kernel(self.orbit.params, self.gains, self.cparams,
                                                 self.tparams, x, t, to_ns(tau_prev), self.tol_ns,
-                                                c.rows, c.filled)
+                                                c.rows, c.t0)
         return ns_to_seconds(tau), int(calls)
 
     def initial_shift(self, x_d: ArrayLike, t: float) -> tuple[float, int]:
@@ -295,7 +355,7 @@ class Predictor:
         c = self.cache(t)
         tau, calls, found = initial_search_kernel(self.orbit.params, self.gains, self.cparams,
                                                   self.tparams, x, t, to_ns(cfg.initial_window_s),
-                                                  to_ns(cfg.initial_grid_s), self.tol_ns, c.rows, c.filled)
+                                                  to_ns(cfg.initial_grid_s), self.tol_ns, c.rows, c.t0)
         if not found:
             raise NoFeasibleShiftError(
                 f"no feasible time shift in [-{cfg.initial_window_s:g}, 0] s for this initial "

@@ -22,8 +22,8 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from sensor_msgs.msg import TimeReference
 
-from cikan_ros.governor import make_governor
-from cikan_ros.mission import ClosedLoop, warm_up
+from cikan_ros.governor import make_governor, warm_up
+from cikan_ros.mission import ClosedLoop, nominal_start
 from cikan_ros.ros import convert as cv
 from cikan_ros.ros.graph import (PATH_HOLD, CHIEF_ODOM, DEPUTY_ODOM, DIAGNOSTICS, QOS_STREAM,
                                  TIME_SHIFT, Readiness, cached_predictor, declare, declare_config,
@@ -46,9 +46,7 @@ class GovernorNode(Node):
         self.predictor = cached_predictor(cfg)
         self.governor = make_governor(name, cfg, self.predictor)
         self.loop = ClosedLoop(self.predictor)
-        # Compiled kernels and the model are loaded and run once before the node joins the graph
-        # (the sim waits for it): no decision of the mission pays for them.
-        warm_up(self.governor, self.loop)
+        self.warm_up(self.governor)
         self.timeline = cv.Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
         self.n_steps = self.loop.n_steps
         self.tau: float | None = None
@@ -72,13 +70,19 @@ class GovernorNode(Node):
             if p.name == "governor.name":
                 try:
                     new = make_governor(str(p.value), self.cfg, self.predictor)
-                    warm_up(new, self.loop)
+                    self.warm_up(new)
                 except Exception as exc:  # a bad model must not reach the running mission
                     self.diag("warn", f"governor {p.value!r} refused: {exc}", {"event": "refused"})
                     return SetParametersResult(successful=False, reason=str(exc))
                 self.governor = new
                 self.diag("ok", f"governor switched to {new.name}", {"event": "switched"})
         return SetParametersResult(successful=True)
+
+    def warm_up(self, governor: Any) -> None:
+        """Load and run every kernel (and a learned governor's network) once, on the nominal start,
+        before the governor decides in the mission: the node joins the graph (and the sim starts)
+        only after this, so no decision of the mission pays for compilation or loading."""
+        warm_up(governor, nominal_start(self.predictor), self.predictor.orbit.state(0.0))
 
     def diag(self, level: str, text: str, values: dict[str, Any], stamp: int | None = None) -> None:
         stamp = self.timeline.stamp_ns(max(self.last_k, 0)) if stamp is None else stamp
@@ -125,7 +129,8 @@ class GovernorNode(Node):
         self.tau = rec.tau_s
         self.pub_tau.publish(msg)
         self.diag("ok", "update", {"event": "update", "k": k, "tau_s": rec.tau_s, "path": rec.path,
-                                   "verify_calls": rec.verify_calls, "wall_s": rec.wall_s}, stamp)
+                                   "verify_calls": rec.verify_calls, "wall_s": rec.wall_s,
+                                   "cpu_s": rec.cpu_s}, stamp)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -54,3 +54,33 @@ def test_bench_json_figures():
     b = json.loads(out.stdout.strip().splitlines()[-1])
     assert b["conventional_update_ms_max"] >= b["conventional_update_ms_mean"] > 0
     assert b["n_update_states"] > 10
+
+
+@pytest.mark.parametrize("damage, match", [
+    ("truncate", "truncated, corrupt or replaced"),
+    ("features", "n_in must be 13"),
+    ("rule", "learned.algorithm"),
+])
+def test_bad_model_file_or_rule_is_one_line_and_exit_2(tmp_path, damage, match):
+    """A truncated weights file, a card whose architecture does not match the weights, and an
+    unknown update rule each end the mission with one line naming the problem, exit 2."""
+    import shutil
+
+    from cikan_ros.learn.modelfile import MODELS_DIR
+
+    model = tmp_path / "m"
+    shutil.copytree(MODELS_DIR / "cikan", model)
+    args = ["mission", "--offline", "--governor", str(model)]
+    if damage == "truncate":
+        w = model / "model.safetensors"
+        w.write_bytes(w.read_bytes()[:1000])
+    elif damage == "features":
+        card = json.loads((model / "card.json").read_text())
+        card["architecture"].update(features="vnb-prev", n_in=12)
+        (model / "card.json").write_text(json.dumps(card))
+    else:
+        args += ["--set", "learned.algorithm=fast"]
+    out = cikan(*args)
+    assert out.returncode == 2, out.stderr
+    assert match in out.stderr and len(out.stderr.strip().splitlines()) == 1, out.stderr
+    assert "Traceback" not in out.stderr + out.stdout

@@ -1,4 +1,5 @@
-"""Golden tests of the edge-function bases against independent references (scipy, math)."""
+"""Golden tests of the edge-function bases of the compiled kernels and of the torch modules
+against independent references (scipy, math), plus a property test of the knot-span boundaries."""
 
 from __future__ import annotations
 
@@ -7,10 +8,12 @@ import math
 import numpy as np
 import pytest
 import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.interpolate import BSpline
 
-from cikan_ros.learn.arch import (Arch, bspline_cox_de_boor, cubic_bspline_uniform, gaussian_rbf,
-                                  rswaf)
+from cikan_ros.learn.arch import (GRBF, RSWAF, Arch, bspline_span, cardinal_cubic_bases,
+                                  de_boor_bases, radial_bases)
 from cikan_ros.learn.models import (GaussianRBFBasis, ReflectionalSwitchBasis,
                                     UniformBSplineBasis)
 
@@ -25,41 +28,85 @@ def scipy_basis(x: np.ndarray, knots: np.ndarray, k: int) -> np.ndarray:
     return np.nan_to_num(out)
 
 
+def kernel_basis(x: np.ndarray, knots: np.ndarray, k: int, cardinal: bool = False) -> np.ndarray:
+    """All G + k bases at each x from the kernels' span routines (the k + 1 span bases scattered
+    into place, zero elsewhere)."""
+    n = len(knots) - k - 1
+    out = np.zeros((len(x), n))
+    phi = np.empty(k + 1)
+    for row, xi in enumerate(x):
+        s = bspline_span(xi, knots)
+        if s < 0:
+            continue
+        if cardinal:
+            cardinal_cubic_bases(xi, s, knots, phi)
+        else:
+            de_boor_bases(xi, s, knots, k, phi)
+        for r in range(k + 1):
+            if 0 <= s - k + r < n:
+                out[row, s - k + r] = phi[r]
+    return out
+
+
 @pytest.mark.parametrize("grid,grid_range", [(5, 3.0), (8, 2.5), (17, 4.0)])
-def test_cubic_bspline_fast_path_matches_scipy(grid: int, grid_range: float) -> None:
+def test_cubic_bspline_bases_match_scipy(grid: int, grid_range: float) -> None:
     arch = Arch("cikan", 4, 2, grid=grid, grid_range=grid_range)
     knots = arch.knots()
     assert len(knots) == grid + 2 * 3 + 1
     x = np.linspace(knots[0] + 1e-9, knots[-1] - 1e-9, 1001)
     ref = scipy_basis(x, knots, 3)
-    fast = cubic_bspline_uniform(x[None, :], knots)[0]
+    fast = kernel_basis(x, knots, 3, cardinal=True)
     assert fast.shape == (len(x), grid + 3)
     np.testing.assert_allclose(fast, ref, atol=1e-12)
-    general = bspline_cox_de_boor(x[None, :], knots, 3)[0]
-    np.testing.assert_allclose(general, ref, atol=1e-12)
+    np.testing.assert_allclose(kernel_basis(x, knots, 3), ref, atol=1e-12)
     basis = UniformBSplineBasis(grid, 3, grid_range, knots)
     xt = torch.tensor(x[None, :], dtype=torch.float32)
     np.testing.assert_allclose(basis.cardinal_cubic(xt)[0].numpy(), ref, atol=2e-6)
     np.testing.assert_allclose(basis.cox_de_boor(xt)[0].numpy(), ref, atol=2e-6)
 
 
-@pytest.mark.parametrize("order", [1, 2, 4])
+@pytest.mark.parametrize("order", [1, 2, 4, 5])
 def test_other_orders_match_scipy(order: int) -> None:
-    arch = Arch("cikan", 4, 2, grid=6, order=order)
-    knots = arch.knots()
-    x = np.linspace(-3.0, 3.0 - 1e-9, 301)
-    np.testing.assert_allclose(bspline_cox_de_boor(x[None, :], knots, order)[0],
-                               scipy_basis(x, knots, order), atol=1e-12)
+    knots = Arch("cikan", 4, 2, grid=6, order=order).knots()
+    x = np.linspace(knots[0], knots[-1] - 1e-9, 1201)
+    np.testing.assert_allclose(kernel_basis(x, knots, order), scipy_basis(x, knots, order),
+                               atol=1e-12)
 
 
 def test_partition_of_unity_inside_grid_and_zero_far_outside() -> None:
-    arch = Arch("cikan", 4, 2, grid=9, grid_range=3.0)
+    knots = Arch("cikan", 4, 2, grid=9, grid_range=3.0).knots()
     x = np.linspace(-3.0, 3.0, 2001)
-    b = cubic_bspline_uniform(x[None, :], arch.knots())[0]
-    np.testing.assert_allclose(b.sum(axis=-1), 1.0, atol=1e-12)
-    assert np.all(b >= -1e-15)
-    far = cubic_bspline_uniform(np.array([[-10.0, 10.0]]), arch.knots())[0]
-    assert np.all(far == 0.0)
+    for cardinal in (True, False):
+        b = kernel_basis(x, knots, 3, cardinal)
+        np.testing.assert_allclose(b.sum(axis=-1), 1.0, atol=1e-12)
+        assert np.all(b >= -1e-15)
+    for x_out in (-10.0, knots[0] - 1e-12, knots[-1], 10.0, math.nan, math.inf):
+        assert bspline_span(x_out, knots) == -1
+
+
+@settings(max_examples=300, deadline=None)
+@given(order=st.integers(1, 5), grid=st.integers(2, 12), m=st.integers(0, 30),
+       ulps=st.integers(-3, 3))
+def test_span_bases_equal_torch_cox_de_boor_at_knots(order: int, grid: int, m: int, ulps: int
+                                                     ) -> None:
+    """At and a few ulps around every knot (float32-rounded, as the torch buffer holds them), the
+    half-open spans and the local recursion give the torch Cox-de Boor bases (float64)."""
+    arch = Arch("cikan", 4, 2, grid=grid, order=order, grid_range=2.3)
+    knots = arch.knots().astype(np.float32).astype(np.float64)
+    t = knots[m % len(knots)]
+    x = t + ulps * np.spacing(t)
+    ref = UniformBSplineBasis(grid, order, 2.3, arch.knots()).double().cox_de_boor(
+        torch.tensor([[x]], dtype=torch.float64))[0, 0].numpy()
+    np.testing.assert_allclose(kernel_basis(np.array([x]), knots, order)[0], ref,
+                               rtol=1e-14, atol=1e-15)
+
+
+def radial_table(x: np.ndarray, centres: np.ndarray, h: float, kind: int) -> np.ndarray:
+    """(len(x), G) basis values from the kernels' ``radial_bases``."""
+    out = np.empty((len(x), len(centres)))
+    for row, xi in enumerate(x):
+        radial_bases(xi, centres, h, kind, out[row])
+    return out
 
 
 def test_grbf_basis_matches_formula() -> None:
@@ -68,7 +115,7 @@ def test_grbf_basis_matches_formula() -> None:
     assert h == 0.37
     x = np.array([-3.1, -2.0, -0.4, 0.0, 0.25, 1.9, 5.0])
     ref = np.array([[math.exp(-(xi - ci) ** 2 / (2 * h * h)) for ci in c] for xi in x])
-    np.testing.assert_allclose(gaussian_rbf(x[None, :], c, h)[0], ref, rtol=1e-13, atol=1e-300)
+    np.testing.assert_allclose(radial_table(x, c, h, GRBF), ref, rtol=1e-13, atol=1e-300)
     t = GaussianRBFBasis(c, h)(torch.tensor(x[None, :], dtype=torch.float64))[0]
     np.testing.assert_allclose(t.numpy(), ref, rtol=1e-6, atol=1e-12)
 
@@ -80,7 +127,7 @@ def test_rswaf_basis_matches_formula_and_honours_h() -> None:
     x = np.array([-4.0, -1.3, 0.0, 0.7, 2.9])
     for h in (0.3, 1.2, 2.5):
         ref = np.array([[1.0 - math.tanh((xi - ci) / h) ** 2 for ci in c] for xi in x])
-        np.testing.assert_allclose(rswaf(x[None, :], c, h)[0], ref, rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(radial_table(x, c, h, RSWAF), ref, rtol=1e-12, atol=1e-15)
         t = ReflectionalSwitchBasis(c, h)(torch.tensor(x[None, :], dtype=torch.float64))[0]
         np.testing.assert_allclose(t.numpy(), ref, rtol=1e-6, atol=1e-12)
 

@@ -1,4 +1,5 @@
-"""Algorithm 1 (SPEC §8): the fallback makes any network safe; decisions follow the pseudo-code."""
+"""Learned update rules (SPEC §8): the paper's Algorithm 1 and the default keep rule. Any network
+is safe under both; under the keep rule any network also docks; decisions follow the pseudo-code."""
 
 from __future__ import annotations
 
@@ -8,13 +9,20 @@ import numpy as np
 import pytest
 import torch
 
-from cikan_ros.governor import (PATH_BISECT, PATH_NN, PATH_NN_BISECT, PATH_VERIFY_ZERO, PATH_ZERO)
+from cikan_ros.governor import (PATH_BISECT, PATH_KEEP, PATH_NN, PATH_NN_BISECT, PATH_PROBE,
+                                PATH_VERIFY_ZERO, PATH_ZERO, update_index)
 from cikan_ros.learn.arch import Arch, NumpyNet
 from cikan_ros.learn.features import features, features_one
 from cikan_ros.learn.governor import LearnedGovernor, nn_accept_rate
 from cikan_ros.learn.models import TimeShiftNet
 from cikan_ros.mission import nominal_start, run_mission, sample_start
-from cikan_ros.tsg import quantise_shift
+from cikan_ros.tsg import Predictor, quantise_shift
+
+
+@pytest.fixture(scope="module")
+def paper_predictor(cfg) -> Predictor:
+    """A predictor whose learned governors run the paper's Algorithm 1."""
+    return Predictor.from_config(cfg.replace(**{"learned.algorithm": "paper"}))
 
 
 def _governor(predictor, arch: Arch, seed: int, target_mean: float, target_std: float,
@@ -38,13 +46,14 @@ def _assert_safe_success(res) -> None:
     assert m["success"], m
 
 
-def test_random_weight_networks_never_violate(predictor) -> None:
+def test_random_weight_networks_never_violate_paper_rule(paper_predictor) -> None:
     """Random KANs on the nominal and a Monte Carlo start: zero violations and |tau| never grows.
 
     Docking is not asserted here: a random network whose output saturates at a constant shift
     that is feasible gets it accepted at every update and can hold tau there (measured: 1 of 6
     runs, stuck at -0.27 s). Algorithm 1 promises safety, not progress, for any network; the
-    fallback-driven cases below do dock."""
+    fallback-driven cases below do dock (and under the keep rule every network docks)."""
+    predictor = paper_predictor
     paths: set[str] = set()
     docked = 0
     for seed in (5, 6, 7):
@@ -64,8 +73,10 @@ def test_random_weight_networks_never_violate(predictor) -> None:
 
 @pytest.mark.parametrize("log_tau,expected", [(math.log(1e-4), PATH_NN_BISECT),
                                               (math.log(1e6), PATH_BISECT)])
-def test_constant_wrong_networks_dock_safely(predictor, log_tau: float, expected: str) -> None:
+def test_constant_wrong_networks_dock_safely_paper_rule(paper_predictor, log_tau: float,
+                                                       expected: str) -> None:
     """Always too close to 0 (|tau| = 1e-4 s), or far outside [tau_prev, 0] (1e6 s)."""
+    predictor = paper_predictor
     gov = _governor(predictor, Arch("relu", 8, 2), seed=0, target_mean=log_tau, target_std=1.0,
                     zero_weights=True)
     res = run_mission(gov, sample_start(predictor, 3))
@@ -75,8 +86,9 @@ def test_constant_wrong_networks_dock_safely(predictor, log_tau: float, expected
     assert nn_accept_rate(res.updates) == 0.0
 
 
-def test_decisions_follow_algorithm_1(predictor) -> None:
+def test_decisions_follow_algorithm_1(paper_predictor) -> None:
     """Replays the pseudo-code with independent predictor calls on recorded update states."""
+    predictor = paper_predictor
     conv = run_mission(_governor(predictor, Arch("relu", 8, 2), 0, 0.0, 1.0, zero_weights=True),
                        nominal_start(predictor))
     tc = predictor.config.control.period_s
@@ -110,7 +122,8 @@ def test_zero_shortcut_skips_the_network(predictor) -> None:
     assert (rec.tau_s, rec.path, rec.verify_calls) == (0.0, PATH_ZERO, 0)
 
 
-def test_non_finite_network_output_falls_back_to_bisection(predictor) -> None:
+def test_non_finite_network_output_falls_back_to_bisection(paper_predictor) -> None:
+    predictor = paper_predictor
     gov = _governor(predictor, Arch("relu", 8, 2), 0, 0.0, 1.0)
     gov.net.target_mean = math.nan
     x0 = nominal_start(predictor)
@@ -128,3 +141,98 @@ def test_single_sample_features_equal_batch_features(predictor) -> None:
         batch = features(x_d, x_c, kind)
         one = np.array([features_one(a, b, kind, np.empty(12)) for a, b in zip(x_d, x_c)])
         np.testing.assert_allclose(one, batch, rtol=1e-13, atol=1e-9)
+
+
+# -- the keep rule (default) -----------------------------------------------------------------
+
+def _update_states(predictor, n: int = 8) -> list[tuple]:
+    """Active update states (x_d, x_c, t, tau_prev) of a conventional mission from a Monte Carlo start."""
+    from cikan_ros.governor import ConventionalGovernor
+
+    res = run_mission(ConventionalGovernor(predictor), sample_start(predictor, 4))
+    return [(res.x_d[k], res.x_c[k], res.t[k], r.tau_prev) for r in res.updates if r.active
+            for k in [int(round(r.k * predictor.config.tsg.update_period_s / predictor.config.control.period_s))]][:n]
+
+
+def test_decisions_follow_the_keep_rule(predictor) -> None:
+    """Replays the keep rule's pseudo-code (SPEC §8) with independent predictor calls."""
+    lc = predictor.config.learned
+    assert lc.algorithm == "keep"
+    snap = predictor.config.tsg.zero_snap_s
+    seen: set[str] = set()
+    states = _update_states(predictor)
+    assert states
+    for gov_seed, log_mean in ((1, math.log(3.0)), (2, math.log(0.3)), (3, math.log(30.0)), (0, None)):
+        for x_d, x_c, t, tau_prev in states:
+            if log_mean is None:  # a constant network that proposes pi* itself (accepted unless 0)
+                star = predictor.optimal_shift(x_d, t, tau_prev)[0]
+                gov = _governor(predictor, Arch("relu", 8, 2), 0, math.log(max(-star, 1e-9)), 1.0,
+                                zero_weights=True)
+            else:
+                gov = _governor(predictor, Arch("gelu", 16, 3), gov_seed, log_mean, 1.0)
+            rec = gov.update(x_d, x_c, t, tau_prev)
+            feat = features_one(x_d, x_c, "vnb", np.empty(12))
+            tau_c = quantise_shift(-math.exp(gov.net.forward_one(gov.net.normalise(feat))))
+            k = update_index(t, predictor.config.tsg.update_period_s)
+            scheduled = k % lc.probe_every == 0
+            b = lc.probe_budget if scheduled else lc.fallback_budget
+            if tau_prev + lc.min_step_s <= tau_c <= 0:
+                if predictor.verify(x_d, t, tau_c):
+                    tau, path, calls = tau_c, PATH_NN, 1
+                elif b == 0:
+                    tau, path, calls = tau_prev, PATH_KEEP, 1
+                else:
+                    tau, c = predictor.bisect(x_d, t, tau_prev, tau_c, budget=b)
+                    path, calls = PATH_NN_BISECT, 1 + c
+            elif not scheduled:
+                tau, path, calls = tau_prev, PATH_KEEP, 0
+            else:
+                tau, calls = predictor.bisect(x_d, t, tau_prev, 0.0, budget=lc.probe_budget)
+                path = PATH_PROBE
+            if tau < 0 and -tau <= snap:
+                calls += 1
+                if predictor.verify(x_d, t, 0.0):
+                    tau, path = 0.0, PATH_VERIFY_ZERO
+            assert (rec.tau_s, rec.path, rec.verify_calls) == (tau, path, calls)
+            assert (rec.k, rec.tau_prev) == (k, tau_prev)
+            # Safety: the answer passed Verify or is tau_prev. Cost: bounded Verify calls.
+            assert rec.tau_s == tau_prev or predictor.verify(x_d, t, rec.tau_s)
+            assert rec.verify_calls <= 1 + max(lc.fallback_budget, lc.probe_budget) + 1
+            seen.add(path)
+    assert {PATH_NN, PATH_KEEP} <= seen
+
+
+def test_budgeted_bisection_returns_its_verified_lower_end(predictor) -> None:
+    """bisect with a budget of B calls: exactly B calls when the tolerance is not reached, the
+    answer is lo or a shift that passed Verify, and it is the unbudgeted bisection's state after
+    B steps (same midpoints)."""
+    x_d, _, t, tau_prev = _update_states(predictor, 1)[0]
+    full_lo, full_hi, full_calls = predictor.bisect_bracket(x_d, t, tau_prev, 0.0)
+    assert full_calls > 3
+    for budget in (0, 1, 2, 3):
+        lo, hi, calls = predictor.bisect_bracket(x_d, t, tau_prev, 0.0, budget=budget)
+        assert calls == budget
+        assert tau_prev <= lo <= full_lo and full_hi <= hi <= 0.0
+        assert lo == tau_prev or predictor.verify(x_d, t, lo)
+        assert not predictor.verify(x_d, t, hi) or hi == 0.0
+
+
+@pytest.mark.parametrize("case", ["random", "too-close-to-zero", "always-keep"])
+def test_adversarial_networks_dock_under_the_keep_rule(predictor, case: str) -> None:
+    """Liveness (SPEC §8 (b)): random weights, a constant |tau| = 1e-4 s (infeasible until the end)
+    and a constant far below tau_prev (never proposes progress) all dock with no violation."""
+    if case == "random":
+        govs = [_governor(predictor, Arch("cikan", 8, 3, grid=5), seed, 0.0, 3.0) for seed in (5, 6, 7)]
+    else:
+        log_tau = math.log(1e-4) if case == "too-close-to-zero" else math.log(1e6)
+        govs = [_governor(predictor, Arch("relu", 8, 2), 0, log_tau, 1.0, zero_weights=True)]
+    for gov in govs:
+        res = run_mission(gov, sample_start(predictor, 3))
+        _assert_safe_success(res)
+        assert np.all(np.diff(res.tau) >= 0.0)
+        paths = {r.path for r in res.updates if r.active}
+        if case == "always-keep":
+            assert paths <= {PATH_KEEP, PATH_PROBE, PATH_VERIFY_ZERO}
+        if case == "too-close-to-zero":
+            # progress comes from the scheduled searches until -1e-4 s itself becomes feasible
+            assert PATH_NN_BISECT in paths and paths <= {PATH_NN_BISECT, PATH_KEEP, PATH_NN, PATH_VERIFY_ZERO}

@@ -1,5 +1,6 @@
-"""Contract tests of the networks and model files: parameter counts, torch = numpy forward,
-save -> load identical outputs, clear errors on missing/truncated/corrupt/mismatched files."""
+"""Contract tests of the networks and model files: parameter counts, torch (float64) = compiled
+inference forward for every family and for the shipped models, save -> load identical outputs,
+clear errors on missing/truncated/corrupt/mismatched files."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import numpy as np
 import pytest
 import torch
 
+from cikan_ros.governor import LEARNED_NAMES
 from cikan_ros.learn.arch import Arch, NumpyNet
 from cikan_ros.learn.errors import ModelFileError
 from cikan_ros.learn.modelfile import CARD, WEIGHTS, load_model, save_model
@@ -18,16 +20,25 @@ from cikan_ros.learn.models import TimeShiftNet
 ARCHS = [
     Arch("cikan", width=8, layers=3, grid=5),
     Arch("cikan", width=6, layers=2, grid=7, hidden_norm=False, features="eci"),
+    Arch("cikan", width=7, layers=3, grid=4, order=1),
+    Arch("cikan", width=7, layers=3, grid=6, order=2, hidden_norm=False),
+    Arch("cikan", width=5, layers=4, grid=9, order=5, grid_range=2.0),
+    Arch("cikan", width=6, layers=3, grid=3, order=5, hidden_norm=False),
     Arch("grbf", width=8, layers=3, grid=6, h=0.7),
+    Arch("grbf", width=8, layers=3, grid=5, hidden_norm=False),
     Arch("rswaf", width=8, layers=3, grid=6),
+    Arch("rswaf", width=9, layers=2, grid=7, h=0.4, hidden_norm=False),
     Arch("relu", width=16, layers=4),
+    Arch("relu", width=1, layers=1),
     Arch("gelu", width=16, layers=3),
 ]
+IDS = [f"{a.family}-k{a.order}-{a.width}x{a.layers}-{'norm' if a.hidden_norm else 'raw'}"
+       if a.is_kan else f"{a.family}-{a.width}x{a.layers}" for a in ARCHS]
 
 
 def closed_form_params(a: Arch) -> int:
     """Parameter counts written out per family (independent of Arch.tensor_shapes)."""
-    n_in, n, ell, g = 12, a.width, a.layers, a.grid
+    n_in, n, ell, g = a.n_in, a.width, a.layers, a.grid
     w = [n_in] + [n] * (ell - 1) + [1]
     pairs = list(zip(w[:-1], w[1:]))
     if a.family == "cikan":   # base β (O·I) + coefficients c (O·I·(G+k)) + scaler α (O·I)
@@ -45,11 +56,11 @@ def _net(a: Arch, seed: int = 0) -> TimeShiftNet:
     torch.manual_seed(seed)
     net = TimeShiftNet(a)
     rng = np.random.default_rng(seed)
-    net.set_normalisation(rng.normal(size=12), rng.uniform(0.5, 2.0, 12), 0.3, 1.7)
+    net.set_normalisation(rng.normal(size=a.n_in), rng.uniform(0.5, 2.0, a.n_in), 0.3, 1.7)
     return net
 
 
-@pytest.mark.parametrize("a", ARCHS, ids=lambda a: f"{a.family}-{a.width}x{a.layers}")
+@pytest.mark.parametrize("a", ARCHS, ids=IDS)
 def test_parameter_counts_equal_closed_forms(a: Arch) -> None:
     net = _net(a)
     assert net.n_params() == a.n_params() == closed_form_params(a)
@@ -65,19 +76,63 @@ def test_paper_complexities() -> None:
     assert Arch("gelu", 1024, 5).complexity() == 5_242_880
 
 
-@pytest.mark.parametrize("a", ARCHS, ids=lambda a: f"{a.family}-{a.width}x{a.layers}")
-def test_numpy_forward_equals_torch(a: Arch) -> None:
-    net = _net(a).double()
-    z = np.random.default_rng(1).normal(size=(200, 12)) * 3.0   # many inputs outside the grid
+def probe_inputs(a: Arch, seed: int = 1) -> np.ndarray:
+    """z-scored inputs (B, n_in): inside the grid, around its edge, far outside (|z| up to 1e3,
+    only the SiLU branch of a B-spline layer sees them), and exactly on the float32 knots."""
+    rng = np.random.default_rng(seed)
+    n = a.n_in
+    far = rng.choice([-1.0, 1.0], size=(40, n)) * 10.0 ** rng.uniform(0.7, 3.0, size=(40, n))
+    mixed = rng.normal(size=(40, n))
+    mixed[:, ::2] = far[:, ::2]
+    on_knots = rng.choice(a.knots().astype(np.float32).astype(np.float64), size=(40, n))
+    return np.vstack([rng.normal(size=(100, n)), 3.0 * rng.normal(size=(100, n)), far, mixed,
+                      on_knots, np.zeros((1, n))])
+
+
+def torch_reference(net: TimeShiftNet, z: np.ndarray) -> np.ndarray:
+    """The training path's output in float64 (a float64 copy of the module)."""
+    ref = TimeShiftNet(net.arch)
+    ref.load_state_dict(net.state_dict())
     with torch.no_grad():
-        ref = net(torch.tensor(z)).numpy()
-    sd = {k: v.numpy() for k, v in net.state_dict().items()}
-    npn = NumpyNet(a, sd)
-    np.testing.assert_allclose(npn.forward(z), ref, rtol=1e-10, atol=1e-10)
-    np.testing.assert_allclose([npn.forward_one(r) for r in z], ref, rtol=1e-10, atol=1e-10)
+        return ref.double()(torch.tensor(z, dtype=torch.float64)).numpy()
 
 
-@pytest.mark.parametrize("a", ARCHS, ids=lambda a: f"{a.family}-{a.width}x{a.layers}")
+@pytest.mark.parametrize("a", ARCHS, ids=IDS)
+def test_compiled_forward_equals_torch(a: Arch) -> None:
+    net = _net(a)
+    z = probe_inputs(a)
+    ref = torch_reference(net, z)
+    npn = NumpyNet(a, {k: v.numpy() for k, v in net.state_dict().items()})
+    batch = npn.forward(z)
+    assert batch.shape == (len(z),) and np.all(np.isfinite(ref))
+    np.testing.assert_allclose(batch, ref, rtol=1e-12, atol=1e-12)
+    # One sample is the same kernel on a batch of one: bit for bit the batch rows.
+    one = np.array([npn.forward_one(r) for r in z])
+    np.testing.assert_array_equal(one, batch)
+    assert isinstance(npn.forward_one(z[0]), float)
+
+
+@pytest.mark.parametrize("name", LEARNED_NAMES)
+def test_shipped_model_compiled_forward_equals_torch(name: str) -> None:
+    m = load_model(name)
+    net = TimeShiftNet(m.arch)
+    net.load_state_dict({k: torch.from_numpy(v) for k, v in m.tensors.items()}, strict=True)
+    z = probe_inputs(m.arch, seed=2)
+    npn = NumpyNet(m.arch, m.tensors)
+    np.testing.assert_allclose(npn.forward(z), torch_reference(net, z), rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal([npn.forward_one(r) for r in z[:20]], npn.forward(z[:20]))
+
+
+def test_forward_rejects_a_wrong_feature_count() -> None:
+    a = ARCHS[0]
+    npn = NumpyNet(a, {k: v.numpy() for k, v in _net(a).state_dict().items()})
+    with pytest.raises(ValueError, match=rf"shape \(B, {a.n_in}\)"):
+        npn.forward(np.zeros((3, a.n_in - 1)))
+    with pytest.raises(ValueError, match=rf"shape \({a.n_in},\)"):
+        npn.forward_one(np.zeros(a.n_in + 1))
+
+
+@pytest.mark.parametrize("a", ARCHS, ids=IDS)
 def test_save_load_identical_outputs(a: Arch, tmp_path: Path) -> None:
     net = _net(a, seed=3)
     save_model(tmp_path / "m", a, net.state_dict(), {"name": "t"})
@@ -86,10 +141,10 @@ def test_save_load_identical_outputs(a: Arch, tmp_path: Path) -> None:
     back = TimeShiftNet(m.arch)
     back.load_state_dict({k: torch.from_numpy(v).to(net.state_dict()[k].dtype)
                           for k, v in m.tensors.items()})
-    z = torch.randn(64, 12)
+    z = torch.randn(64, a.n_in)
     with torch.no_grad():
         assert torch.equal(net(z), back(z))
-    # Through the file the numpy path sees exactly the saved float32 weights.
+    # Through the file the compiled path sees exactly the saved float32 weights.
     npn = NumpyNet(m.arch, m.tensors)
     with torch.no_grad():
         ref = net.double()(z.double()).numpy()

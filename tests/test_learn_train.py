@@ -111,3 +111,67 @@ def test_cli_tune_then_train_from_the_study(data_path: Path, tmp_path: Path,
     assert (m.arch.width, m.arch.layers, m.arch.grid) == (best["width"], best["layers"], best["grid"])
     assert m.card["losses"]["theta_c"] == pytest.approx(best["theta_c"])
     assert m.card["tuning"]["trials"] == 2
+
+
+def test_tau_prev_network_trains_and_flies(data_path: Path, tmp_path: Path, predictor) -> None:
+    """The "vnb-prev" feature set end to end: the 13th input is ln|tau_{k-1}| of each label,
+    the model file round-trips with 13 normalisation entries, and its governor feeds tau_prev
+    (same proposal as the batch features of the same state)."""
+    from cikan_ros.learn.dataset import read_parquet
+    from cikan_ros.learn.features import features
+    from cikan_ros.learn.governor import LearnedGovernor
+    from cikan_ros.tsg import quantise_shift
+
+    data = load_data(data_path, "vnb-prev")
+    df, _ = read_parquet(data_path)
+    train_rows = df[df["split"] == "train"]
+    np.testing.assert_array_equal(data.splits["train"].feats[:, 12],
+                                  np.log(-train_rows["tau_prev_s"].to_numpy()))
+    arch = Arch("cikan", 6, 2, grid=4, features="vnb-prev", n_in=13)
+    train(arch, data, TrainConfig(epochs=2, batch=64), tmp_path / "m", None, progress=False)
+    m = load_model(tmp_path / "m")
+    assert m.arch.n_in == 13 and m.tensors["feature_mean"].shape == (13,)
+    gov = LearnedGovernor.from_model(m, predictor)
+    row = train_rows.iloc[0]
+    x_d = row[[f"xd{i}" for i in range(6)]].to_numpy(dtype=float)
+    x_c = row[[f"xc{i}" for i in range(6)]].to_numpy(dtype=float)
+    z = gov.net.normalise(features(x_d, x_c, "vnb-prev", row["tau_prev_s"]))
+    expected = quantise_shift(-np.exp(gov.net.forward(z[None, :])[0]))
+    assert gov.proposal(x_d, x_c, float(row["tau_prev_s"])) == expected
+    rec = gov.update(x_d, x_c, float(row["t_s"]), float(row["tau_prev_s"]))
+    assert rec.tau_s == row["tau_prev_s"] or predictor.verify(x_d, float(row["t_s"]), rec.tau_s)
+
+
+def test_models_page_tables_come_from_cards_and_data(data_path: Path, tmp_path: Path) -> None:
+    """`cikan models`: one row per model directory from its card; the breakdown's groups hold
+    the stated shares of the split and their losses are the paper's loss on those labels."""
+    from cikan_ros.learn.arch import NumpyNet
+    from cikan_ros.learn.cards import loss_breakdown, models_page, shipped_models
+    from cikan_ros.learn.dataset import read_parquet
+    from cikan_ros.learn.features import features
+    from cikan_ros.learn.loss import cinn_log_loss_np
+
+    data = load_data(data_path)
+    for name, features_kind in (("a", "vnb"), ("b", "vnb-prev")):
+        train(Arch("relu", 8, 2, features=features_kind),
+              load_data(data_path, features_kind) if features_kind != "vnb" else data,
+              TrainConfig(epochs=1, batch=64), tmp_path / "models" / name, None, progress=False)
+    models = shipped_models(tmp_path / "models")
+    page, meta = models_page("# intro\n", data_path, "val", tmp_path / "models")
+    assert meta["models"] == 2 and page.startswith("# intro")
+    assert "| a | vnb |" in page and "| b | vnb-prev |" in page
+    table = loss_breakdown(models, data_path, "val")
+    rows = {line.split(" | ")[0].lstrip("| "): line for line in table.splitlines() if line.startswith("| ")}
+    df, _ = read_parquet(data_path)
+    val = df[df["split"] == "val"]
+    tau, prev = val["tau_star_s"].to_numpy(), val["tau_prev_s"].to_numpy()
+    y = np.log(-tau)
+    m = models[0]
+    net = NumpyNet(m.arch, m.tensors)
+    pred = net.forward(net.normalise(features(val[[f"xd{i}" for i in range(6)]].to_numpy(),
+                                              val[[f"xc{i}" for i in range(6)]].to_numpy(), "vnb")))
+    hold = (tau - prev) <= 1e-4
+    assert rows["all"].split(" | ")[2] == f"{cinn_log_loss_np(pred, y):.3e}"
+    assert rows["move"].split(" | ")[1] == f"{np.mean(~hold):.1%}"
+    if (~hold).any():
+        assert rows["move"].split(" | ")[2] == f"{cinn_log_loss_np(pred[~hold], y[~hold]):.3e}"

@@ -111,7 +111,7 @@ def write_report(path: str | Path, out_dir: str | Path, cfg: Config | None = Non
 
     ``notes`` (Markdown) is inserted after the tables, before the figures.
     """
-    from .table import build_table, to_csv, to_markdown
+    from .table import build_table, summary, to_csv, to_markdown
 
     kind, runs, metrics = load_runs(path, cfg)
     out = Path(out_dir)
@@ -129,7 +129,8 @@ def write_report(path: str | Path, out_dir: str | Path, cfg: Config | None = Non
         rows = build_table(path)
         (out / "table2.md").write_text(to_markdown(rows))
         (out / "table2.csv").write_text(to_csv(rows))
-        lines += ["## Table 2", "", to_markdown(rows), "",
+        lines += ["## Table 2", "", to_markdown(rows), "", "What it shows (generated from the table):", "",
+                  summary(rows), "",
                   f"Per governor over its runs (the trajectory figures draw the first {MAX_DRAWN} runs of each; "
                   f"Fig. 4 shows run `{runs[worst].label}`, the one closest to the LoS boundary).", ""]
         lines += ["| governor | runs | successes | violations | ΔV mean (km/s) | min h1 margin |", "|---|---|---|---|---|---|"]

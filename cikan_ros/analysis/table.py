@@ -4,7 +4,9 @@ Per governor: trainable parameters and the paper's complexity n^2 l (G+3) (from 
 train/val loss (card, the paper's definition), RMSE of tau against pi* solved at the states the
 learned governor visited, update time mean / worst over all updates of all runs (the paper's
 definition) and over active updates (tau_prev < 0), speed-up against the conventional TSG of the
-same campaign, dV mean, success count, violations and the network acceptance rate.
+same campaign, dV mean, success count, violations and the network acceptance rate. Update times
+are CPU times of the deciding thread (``UpdateRecord.cpu_s``): wall times on a shared machine
+also count waits for a core.
 """
 
 from __future__ import annotations
@@ -19,10 +21,10 @@ from typing import Any
 import numpy as np
 
 from ..config import config_from_flat
-from ..governor import PATH_INITIAL, PATH_NN, PATH_ZERO
+from ..governor import PATH_NN, split_rule
+from ..mission import errors_against_optimal, rmse, update_states
 from ..montecarlo import load_run_arrays, summarise
 from ..tsg import Predictor
-from ..units import through_si
 
 #: The paper's Table 2 (SPEC §9): complexity, L_train, L_val (x1e-3), RMSE s, time mean/worst s, dV km/s.
 PAPER = {
@@ -36,10 +38,12 @@ PAPER = {
 PAPER_NAMES = {"conventional": "TSG", "cikan": "CIKAN (128,5,17)", "grbf": "GRBF (32,6,17)",
                "rswaf": "RSWAF (64,6,17)", "relu": "CINN-ReLU (2048,5)", "gelu": "CINN-GELU (1024,5)"}
 
-COLUMNS = ("model", "architecture", "trainable_params", "paper_complexity", "loss_train_1e3",
+COLUMNS = ("model", "rule", "architecture", "trainable_params", "paper_complexity", "loss_train_1e3",
            "loss_val_1e3", "rmse_tau_s", "rmse_tau_active_s", "update_ms_mean", "update_ms_max",
            "active_update_ms_mean", "active_update_ms_max", "speedup_mean", "speedup_worst",
-           "delta_v_kmps_mean", "successes", "runs", "violations", "nn_accept_rate")
+           "active_speedup_mean", "active_speedup_worst", "delta_v_kmps_mean", "delta_v_vs_conventional",
+           "t_tau_zero_s_mean", "t_tau_zero_vs_conventional", "successes", "runs", "violations",
+           "nn_accept_rate")
 
 
 def _runs(gov_dir: Path) -> list[tuple[dict[str, Any], dict[str, Any], Path]]:
@@ -56,30 +60,29 @@ def rmse_against_optimal(runs: list[tuple[dict[str, Any], dict[str, Any], Path]]
     """(RMSE over all updates, RMSE over active updates, NN acceptance rate) of a learned governor.
 
     pi* is the conventional TSG answer at the state the governor saw (through SI), from the same
-    tau_prev. The acceptance rate counts updates whose network proposal was returned (path "nn")
-    among the updates that consulted the network (every path but "zero").
+    tau_prev (``mission.errors_against_optimal``; pi* = 0 with no prediction when tau_prev = 0).
+    The acceptance rate counts updates whose network proposal was returned (path "nn") among the
+    active updates (every one of them consults the network).
     """
     pred: Predictor | None = None
-    err_all: list[float] = []
-    err_active: list[float] = []
-    consulted = accepted = 0
+    err_active: list[np.ndarray] = []
+    err_zero: list[np.ndarray] = []
+    active = accepted = 0
     for _, flat, npz in runs:
+        cfg = config_from_flat(flat)
         if pred is None:
-            pred = Predictor.from_config(config_from_flat(flat))
+            pred = Predictor.from_config(cfg)
         a = load_run_arrays(npz)
-        tc = float(flat["control.period_s"])
-        for t_u, tau_u, path in zip(a["update_t"], a["update_tau"], a["update_path"]):
-            k = int(round(float(t_u) / tc))
-            tau_prev = float(a["tau"][k - 1])
-            if path not in (PATH_ZERO, PATH_INITIAL):
-                consulted += 1
-                accepted += path == PATH_NN
-            star = 0.0 if tau_prev == 0.0 else pred.optimal_shift(through_si(a["x_d"][k]), float(a["t"][k]), tau_prev)[0]
-            err_all.append(float(tau_u) - star)
-            if tau_prev < 0.0:
-                err_active.append(float(tau_u) - star)
-    rms = lambda e: float(math.sqrt(np.mean(np.square(e)))) if e else math.nan  # noqa: E731
-    return rms(err_all), rms(err_active), (accepted / consulted if consulted else math.nan)
+        updates = list(zip(a["update_k"], a["update_tau_prev"], a["update_tau"]))
+        states = update_states(cfg, a["t"], a["x_d"], a["x_c"], updates, active_only=False)
+        err_active.append(errors_against_optimal(pred, states))
+        err_zero.append(np.array([s.tau for s in states if not s.active]))
+        is_active = a["update_tau_prev"] < 0.0
+        active += int(is_active.sum())
+        accepted += int(np.sum(is_active & (a["update_path"] == PATH_NN)))
+    e_active = np.concatenate(err_active) if err_active else np.empty(0)
+    e_all = np.concatenate([e_active] + err_zero) if err_zero else e_active
+    return rmse(e_all), rmse(e_active), (accepted / active if active else math.nan)
 
 
 def _card(name: str) -> dict[str, Any] | None:
@@ -93,22 +96,32 @@ def _card(name: str) -> dict[str, Any] | None:
 def build_table(mc_dir: str | Path, with_rmse: bool = True) -> list[dict[str, Any]]:
     """Rows of Table 2 for every governor directory in a campaign (conventional first)."""
     mc = Path(mc_dir)
+
+    def order(g: str) -> tuple:
+        base, rule = split_rule(g)
+        return (g != "conventional", list(PAPER).index(base) if base in PAPER else 99, base,
+                rule == "paper")
+
     govs = sorted((d.name for d in mc.iterdir() if d.is_dir() and any(d.glob("seed_*.json"))),
-                  key=lambda g: (g != "conventional", list(PAPER).index(g) if g in PAPER else 99, g))
+                  key=order)
     rows = []
     conv: dict[str, Any] | None = None
     for g in govs:
         runs = _runs(mc / g)
         s = summarise([m for m, _, _ in runs])
         row: dict[str, Any] = {c: None for c in COLUMNS}
-        row.update(model=g, runs=s["runs"], successes=s["successes"], violations=s["violations"],
-                   delta_v_kmps_mean=s["delta_v_kmps_mean"], update_ms_mean=s["update_ms_mean"],
-                   update_ms_max=s["update_ms_max"], active_update_ms_mean=s["active_update_ms_mean"],
-                   active_update_ms_max=s["active_update_ms_max"])
+        base, rule = split_rule(g)
+        if rule is None and g != "conventional":
+            rule = config_from_flat(runs[0][1]).learned.algorithm if runs else None
+        row.update(model=g, rule=rule, runs=s["runs"], successes=s["successes"],
+                   violations=s["violations"], t_tau_zero_s_mean=s["t_tau_zero_s_mean"],
+                   delta_v_kmps_mean=s["delta_v_kmps_mean"], update_ms_mean=s["update_cpu_ms_mean"],
+                   update_ms_max=s["update_cpu_ms_max"], active_update_ms_mean=s["active_update_cpu_ms_mean"],
+                   active_update_ms_max=s["active_update_cpu_ms_max"])
         if g == "conventional":
             conv = s
         else:
-            card = _card(g)
+            card = _card(base)
             if card is not None:
                 arch = card.get("architecture", {})
                 row.update(architecture=_arch_label(arch),
@@ -122,8 +135,13 @@ def build_table(mc_dir: str | Path, with_rmse: bool = True) -> list[dict[str, An
     if conv is not None:
         for row in rows:
             if row["update_ms_mean"]:
-                row["speedup_mean"] = conv["update_ms_mean"] / row["update_ms_mean"]
-                row["speedup_worst"] = conv["update_ms_max"] / row["update_ms_max"]
+                row["speedup_mean"] = conv["update_cpu_ms_mean"] / row["update_ms_mean"]
+                row["speedup_worst"] = conv["update_cpu_ms_max"] / row["update_ms_max"]
+            if row["active_update_ms_mean"]:
+                row["active_speedup_mean"] = conv["active_update_cpu_ms_mean"] / row["active_update_ms_mean"]
+                row["active_speedup_worst"] = conv["active_update_cpu_ms_max"] / row["active_update_ms_max"]
+            row["delta_v_vs_conventional"] = row["delta_v_kmps_mean"] / conv["delta_v_kmps_mean"] - 1.0
+            row["t_tau_zero_vs_conventional"] = row["t_tau_zero_s_mean"] / conv["t_tau_zero_s_mean"] - 1.0
     return rows
 
 
@@ -139,31 +157,68 @@ def _fmt(v: Any, spec: str) -> str:
 
 
 def to_markdown(rows: list[dict[str, Any]]) -> str:
-    """Our Table 2 with the paper's row under each model."""
-    head = ("| model | params (trainable) | complexity n²ℓ(G+3) | L_train, L_val ×1e-3 | RMSE τ (s) all / active "
-            "| update ms mean / worst | active ms mean / worst | speed-up mean / worst | ΔV (km/s) "
+    """Our Table 2 (the paper's all-updates timing, active-phase timing beside it), the paper's
+    row under each family; learned rows name their update rule (keep: default, paper: the
+    paper's Algorithm 1). ΔV and t(τ=0) also relative to the conventional TSG of the campaign."""
+    head = ("| model | rule | params (trainable) | complexity n²ℓ(G+3) | L_train, L_val ×1e-3 "
+            "| RMSE τ (s) all / active | update ms mean / worst | speed-up mean / worst "
+            "| active ms mean / worst | active speed-up mean / worst | ΔV (km/s) | t(τ=0) mean (s) "
             "| success | violations | NN accept |")
-    lines = [head, "|" + "---|" * 12]
-    for r in rows:
+    lines = [head, "|" + "---|" * 15]
+
+    def rel(v: Any) -> str:
+        return "" if v is None or not math.isfinite(v) else f" ({v:+.1%})"
+
+    for i, r in enumerate(rows):
         g = r["model"]
+        base, _ = split_rule(g)
         lines.append(
-            f"| **{g}** {r['architecture'] or ''} | {_fmt(r['trainable_params'], ',')} "
-            f"| {_fmt(r['paper_complexity'], ',')} "
+            f"| **{base}** {r['architecture'] or ''} | {r['rule'] or '-'} "
+            f"| {_fmt(r['trainable_params'], ',')} | {_fmt(r['paper_complexity'], ',')} "
             f"| {_fmt(r['loss_train_1e3'], '.4f')}, {_fmt(r['loss_val_1e3'], '.4f')} "
             f"| {_fmt(r['rmse_tau_s'], '.4f')} / {_fmt(r['rmse_tau_active_s'], '.4f')} "
             f"| {_fmt(r['update_ms_mean'], '.3f')} / {_fmt(r['update_ms_max'], '.2f')} "
-            f"| {_fmt(r['active_update_ms_mean'], '.3f')} / {_fmt(r['active_update_ms_max'], '.2f')} "
             f"| {_fmt(r['speedup_mean'], '.2f')} / {_fmt(r['speedup_worst'], '.2f')} "
-            f"| {_fmt(r['delta_v_kmps_mean'], '.4f')} | {r['successes']}/{r['runs']} | {r['violations']} "
-            f"| {_fmt(r['nn_accept_rate'], '.3f')} |")
-        if g in PAPER:
-            cx, lt, lv, rmse, tm, tw, dv = PAPER[g]
+            f"| {_fmt(r['active_update_ms_mean'], '.3f')} / {_fmt(r['active_update_ms_max'], '.2f')} "
+            f"| {_fmt(r['active_speedup_mean'], '.2f')} / {_fmt(r['active_speedup_worst'], '.2f')} "
+            f"| {_fmt(r['delta_v_kmps_mean'], '.4f')}{rel(r['delta_v_vs_conventional']) if g != 'conventional' else ''} "
+            f"| {_fmt(r['t_tau_zero_s_mean'], '.0f')}{rel(r['t_tau_zero_vs_conventional']) if g != 'conventional' else ''} "
+            f"| {r['successes']}/{r['runs']} | {r['violations']} | {_fmt(r['nn_accept_rate'], '.3f')} |")
+        last_of_family = i + 1 == len(rows) or split_rule(rows[i + 1]["model"])[0] != base
+        if base in PAPER and last_of_family:
+            cx, lt, lv, rmse_p, tm, tw, dv = PAPER[base]
             lines.append(
-                f"| *paper: {PAPER_NAMES[g]}* | - | {cx} | {_fmt(lt, '.4f')}, {_fmt(lv, '.4f')} "
-                f"| {_fmt(rmse, '.4f')} | {tm * 1e3:.1f} / {tw * 1e3:.0f} | - "
+                f"| *paper: {PAPER_NAMES[base]}* | {'-' if base == 'conventional' else 'paper'} | - | {cx} "
+                f"| {_fmt(lt, '.4f')}, {_fmt(lv, '.4f')} | {_fmt(rmse_p, '.4f')} "
+                f"| {tm * 1e3:.1f} / {tw * 1e3:.0f} "
                 f"| {_fmt(PAPER['conventional'][4] / tm, '.2f')} / {_fmt(PAPER['conventional'][5] / tw, '.2f')} "
-                f"| {dv:.4f} | 100/100 | 0 | - |")
+                f"| - | - | {dv:.4f} | - | 100/100 | 0 | - |")
     return "\n".join(lines) + "\n"
+
+
+def summary(rows: list[dict[str, Any]]) -> str:
+    """What the table shows, per update rule, as ranges over the learned families (Markdown
+    bullets, generated so that the prose around the table never restates a number by hand)."""
+    def span(key: str, fmt: str, rs: list[dict[str, Any]]) -> str:
+        v = [r[key] for r in rs if r[key] is not None and math.isfinite(r[key])]
+        return "-" if not v else f"{format(min(v), fmt)} to {format(max(v), fmt)}"
+
+    out = []
+    learned = [r for r in rows if r["model"] != "conventional"]
+    for rule in dict.fromkeys(r["rule"] for r in learned):
+        rs = [r for r in learned if r["rule"] == rule]
+        ok = sum(r["successes"] for r in rs)
+        runs = sum(r["runs"] for r in rs)
+        out.append(
+            f"- **{rule} rule** ({', '.join(split_rule(r['model'])[0] for r in rs)}): "
+            f"{ok}/{runs} runs docked, {sum(r['violations'] for r in rs)} violations; "
+            f"active-phase speed-up {span('active_speedup_mean', '.2f', rs)}x mean and "
+            f"{span('active_speedup_worst', '.2f', rs)}x worst; all-updates speed-up "
+            f"{span('speedup_mean', '.2f', rs)}x mean and {span('speedup_worst', '.2f', rs)}x worst; "
+            f"ΔV {span('delta_v_vs_conventional', '+.1%', rs)} and mean time to τ = 0 "
+            f"{span('t_tau_zero_vs_conventional', '+.1%', rs)} against the conventional TSG; "
+            f"active-phase RMSE against π* {span('rmse_tau_active_s', '.3f', rs)} s.")
+    return "\n".join(out) + "\n"
 
 
 def to_csv(rows: list[dict[str, Any]]) -> str:

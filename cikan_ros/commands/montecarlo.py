@@ -15,7 +15,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "for each governor; keep per-run results in --out.")
     p.add_argument("--runs", type=int, default=100, help="runs per governor (paper: 100)")
     p.add_argument("--governor", default="conventional", metavar="NAME|PATH|all",
-                   help="a governor name or model path, a comma-separated list, or 'all'")
+                   help="a governor name or model path (NAME@paper: under the paper's Algorithm 1), "
+                        "a comma-separated list, or 'all' (conventional, the five families under "
+                        "the keep rule and under the paper's rule)")
     p.add_argument("--seed", type=int, default=1, help="seed of the first run (default 1)")
     p.add_argument("--workers", type=int, default=1, help="local worker processes")
     p.add_argument("--dask", metavar="ADDRESS", default=None, help="Dask scheduler, e.g. tcp://host:8786")
@@ -26,10 +28,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..governor import GOVERNOR_NAMES
+    from ..governor import CAMPAIGN_NAMES
     from ..montecarlo import markdown_summary, run_campaign, summarise
 
-    governors = list(GOVERNOR_NAMES) if args.governor == "all" else args.governor.split(",")
+    governors = list(CAMPAIGN_NAMES) if args.governor == "all" else args.governor.split(",")
     cfg = config_from_args(args)
     results = run_campaign(cfg, governors, args.runs, args.seed, args.out, args.workers, args.dask)
     summaries = {g: summarise(runs) for g, runs in results.items()}

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from ..learn.features import FEATURE_SETS
 from . import dumps
 
 FAMILY_HELP = "cikan (B-spline KAN), grbf, rswaf, relu (MLP), gelu (MLP)"
@@ -29,7 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--grid-range", type=float, default=None, help="grid covers [-R, R] (KAN)")
     g.add_argument("--h", type=float, default=None, help="basis width h (GRBF, RSWAF; 0 = spacing)")
     g.add_argument("--no-hidden-norm", action="store_true", help="no LayerNorm on hidden KAN inputs")
-    g.add_argument("--features", default="vnb", choices=("vnb", "eci"), help="feature set")
+    g.add_argument("--features", default="vnb", choices=FEATURE_SETS, help="feature set")
     t = p.add_argument_group("training")
     t.add_argument("--epochs", type=int, default=40, help="epochs N of the schedule")
     t.add_argument("--upper-bound", type=int, default=0, help="ExpHyperbolicLR U >= N (0: N)")
@@ -68,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
         from ..learn.tune import arch_and_hp_from_params, study_name_for, study_summary
 
         optuna.logging.set_verbosity(optuna.logging.WARNING)
-        name = args.study_name or study_name_for(args.model)
+        name = args.study_name or study_name_for(args.model, args.features)
         try:
             study = optuna.load_study(study_name=name, storage=args.study)
         except KeyError:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from ..learn.features import FEATURE_SETS
 from . import dumps
 
 
@@ -17,7 +18,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="Optuna storage URL (default: a SQLite file under runs/)")
     p.add_argument("--study-name", default=None, help="study name (default cikan-tsg-MODEL)")
     p.add_argument("--data", default="runs/dataset.parquet", metavar="PATH", help="dataset (Parquet)")
-    p.add_argument("--features", default="vnb", choices=("vnb", "eci"))
+    p.add_argument("--features", default="vnb", choices=FEATURE_SETS)
     p.add_argument("--epochs", type=int, default=8, help="epochs per trial (schedule length)")
     p.add_argument("--max-train", type=int, default=40000, help="training labels per trial (0: all)")
     p.add_argument("--trial-minutes", type=float, default=2.0, help="wall budget per trial")

@@ -1,9 +1,10 @@
 """Architectures of the five model families, without torch: tensor names and shapes, parameter
-counts, the paper's complexity n²ℓ(G+3), and a float64 numpy forward pass for inference.
+counts, the paper's complexity n²ℓ(G+3), and the float64 inference forward of each family.
 
-The governor runs networks through :class:`NumpyNet` (no torch import, no autograd, one sample
-at a time in microseconds); training uses the torch modules of ``cikan_ros.learn.models``, which
-have the same tensor names. Tests check that both give the same outputs.
+The governor runs networks through :class:`NumpyNet` (no torch import, no autograd): one compiled
+numba kernel with one layer per family (B-spline KAN, radial KAN, MLP) takes a batch of z-scored
+features, and one sample is the same kernel on a batch of one. Training uses the torch modules of
+``cikan_ros.learn.models``, which have the same tensor names; tests check that both agree.
 
 Widths: ``[n_in] + [width] * (layers - 1) + [1]``, so ``layers`` = ℓ counts the maps (KAN layers
 Φ_l or linear layers), as in the paper's complexity n²ℓ(G+3).
@@ -31,16 +32,20 @@ from typing import Any, Mapping
 import numba as nb
 import numpy as np
 from numpy.typing import NDArray
-from scipy.special import erf
 
 from .errors import ModelFileError
-from .features import FEATURE_SETS, N_FEATURES
+from .features import FEATURE_SETS, N_FEATURES, n_features
 
 FAMILIES = ("cikan", "grbf", "rswaf", "relu", "gelu")
 KAN_FAMILIES = ("cikan", "grbf", "rswaf")
 #: Buffers every model file carries (float64): feature and target normalisation.
 NORM_TENSORS = {"feature_mean": (N_FEATURES,), "feature_std": (N_FEATURES,),
                 "target_mean": (1,), "target_std": (1,)}
+
+
+def norm_tensor_shapes(n_in: int) -> dict[str, tuple[int, ...]]:
+    """Shapes of the normalisation buffers of a network with ``n_in`` inputs."""
+    return {"feature_mean": (n_in,), "feature_std": (n_in,), "target_mean": (1,), "target_std": (1,)}
 LAYERNORM_EPS = 1e-5
 
 
@@ -57,7 +62,7 @@ class Arch:
     grid_range: float = 3.0
     h: float = 0.0
     hidden_norm: bool = True
-    n_in: int = N_FEATURES
+    n_in: int = 0           # 0: the feature set's input count
     features: str = "vnb"
 
     def __post_init__(self) -> None:
@@ -78,10 +83,12 @@ class Arch:
             bad("grid_range must be > 0")
         if not (math.isfinite(self.h) and self.h >= 0):
             bad("h must be >= 0")
-        if self.n_in != N_FEATURES:
-            bad(f"n_in must be {N_FEATURES}")
         if self.features not in FEATURE_SETS:
             bad(f"features must be one of {FEATURE_SETS}")
+        if self.n_in == 0:
+            object.__setattr__(self, "n_in", n_features(self.features))
+        if self.n_in != n_features(self.features):
+            bad(f"n_in must be {n_features(self.features)} for features {self.features!r}")
 
     # -- shape -------------------------------------------------------------------------------
     @property
@@ -162,110 +169,198 @@ class Arch:
         return np.linspace(-self.grid_range, self.grid_range, self.grid)
 
 
-def cubic_bspline_uniform(x: NDArray, knots: NDArray) -> NDArray:
-    """Fast path: the G + 3 cubic B-splines of a uniform knot vector at x (..., n) -> (..., n, G+3).
+# -- compiled inference forward --------------------------------------------------------------
+# One numba kernel, network_forward, runs a batch z (B, n_in) -> (B,) network outputs (before the
+# target de-normalisation) through one compiled layer per family (bspline_kan_layer,
+# radial_kan_layer, mlp_layer); a single sample is the same kernel on a (1, n_in) view. Layout
+# (NumpyNet._pack): every tensor of a network as rows of one float64 table (R, max width), and per
+# layer l the first rows ``rows[l] = (norm, edge, second)``: LayerNorm weight then bias (-1: none);
+# the edge weights, one row of O outputs per (input i, basis m) at i·M + m (MLPs: per input i);
+# the second tensor, SiLU base weights β (one row per input) of B-spline KANs or the bias row of
+# MLPs (-1: none). Every input and basis then adds a scaled row to the O outputs: contiguous and
+# vectorised across outputs without fastmath (no reassociation). (Rows, not offsets into a flat array: indexing a flat array by a
+# runtime offset costs a negative-index check per element and stops vectorisation.)
 
-    Each basis is the cardinal cubic B-spline N(u), u = (x - t_m)/Δ, written branch-free with
-    s = |u - 2|: N = (relu(2 - s)³ - 4 relu(1 - s)³) / 6.
-    """
+BSPLINE, GRBF, RSWAF, RELU, GELU = range(len(FAMILIES))   # ``kind``: FAMILIES[kind]
+_SQRT1_2 = 1.0 / math.sqrt(2.0)
+
+
+@nb.njit(cache=True, inline="always")
+def _layer_norm(x: NDArray, n: int, table: NDArray, r: int) -> None:
+    """In place on x[:n]: (x - mean) / sqrt(var + eps) · weight + bias, biased variance (torch);
+    weight and bias in rows r, r + 1."""
+    mu = 0.0
+    for i in range(n):
+        mu += x[i]
+    mu /= n
+    var = 0.0
+    for i in range(n):
+        d = x[i] - mu
+        var += d * d
+    inv = 1.0 / np.sqrt(var / n + LAYERNORM_EPS)
+    for i in range(n):
+        x[i] = (x[i] - mu) * inv * table[r, i] + table[r + 1, i]
+
+
+@nb.njit(cache=True, inline="always")
+def _add_row(y: NDArray, a: float, table: NDArray, r: int, n: int) -> None:
+    """y[:n] += a · table[r, :n]."""
+    for j in range(n):
+        y[j] += a * table[r, j]
+
+
+@nb.njit(cache=True, inline="always")
+def bspline_span(x: float, knots: NDArray) -> int:
+    """Knot span s with knots[s] <= x < knots[s+1] (half-open, as the torch ``cox_de_boor``);
+    -1 when x is outside [t_0, t_last) or NaN (then every B-spline is zero)."""
+    n = knots.shape[0]
+    if not (x >= knots[0] and x < knots[n - 1]):
+        return -1
+    s = min(int((x - knots[0]) / (knots[1] - knots[0])), n - 2)
+    while x < knots[s]:
+        s -= 1
+    while x >= knots[s + 1]:
+        s += 1
+    return s
+
+
+@nb.njit(cache=True, inline="always")
+def cardinal_cubic_bases(x: float, s: int, knots: NDArray, phi: NDArray) -> None:
+    """phi[r] = B_{s-3+r}(x), r = 0..3, cubic, as the torch ``cardinal_cubic``: N(u),
+    u = (x - t_m)/Δ, s = |u - 2|, N = (relu(2 - s)³ - 4 relu(1 - s)³) / 6, Δ = t_1 - t_0.
+    Entries of bases outside 0 .. G+2 are set to 0."""
     step = knots[1] - knots[0]
-    s = np.abs((x[..., None] - knots[:-4]) / step - 2.0)
-    a = np.maximum(2.0 - s, 0.0)
-    b = np.maximum(1.0 - s, 0.0)
-    return (a * a * a - 4.0 * b * b * b) / 6.0
+    n_basis = knots.shape[0] - 4
+    for r in range(4):
+        m = s - 3 + r
+        if m < 0 or m >= n_basis:
+            phi[r] = 0.0
+            continue
+        d = abs((x - knots[m]) / step - 2.0)
+        a = max(2.0 - d, 0.0)
+        b = max(1.0 - d, 0.0)
+        phi[r] = (a * a * a - 4.0 * b * b * b) / 6.0
 
 
-def bspline_cox_de_boor(x: NDArray, knots: NDArray, order: int) -> NDArray:
-    """General path: B-splines of degree ``order`` on ``knots`` by the Cox-de Boor recursion,
-    x (..., n) -> (..., n, len(knots) - order - 1). Half-open intervals [t_m, t_m+1)."""
-    x = x[..., None]
-    b = ((x >= knots[:-1]) & (x < knots[1:])).astype(np.float64)
+@nb.njit(cache=True, inline="always")
+def de_boor_bases(x: float, s: int, knots: NDArray, order: int, phi: NDArray) -> None:
+    """phi[r] = B_{s-k+r}(x), r = 0..k (k = order), the k + 1 B-splines that can be non-zero on
+    the span s, by the Cox-de Boor recursion restricted to that span:
+    B_m^p = (x - t_m)/(t_{m+p} - t_m) B_m^{p-1} + (t_{m+p+1} - x)/(t_{m+p+1} - t_{m+1}) B_{m+1}^{p-1},
+    B_s^0 = 1. Bases the knot vector does not hold (m < 0, m + p + 1 > last knot) are 0."""
+    last = knots.shape[0] - 1
+    phi[0] = 1.0
     for p in range(1, order + 1):
-        left = (x - knots[: -(p + 1)]) / (knots[p:-1] - knots[: -(p + 1)]) * b[..., :-1]
-        right = (knots[p + 1:] - x) / (knots[p + 1:] - knots[1:-p]) * b[..., 1:]
-        b = left + right
-    return b
+        for r in range(p, -1, -1):        # phi[r] becomes B_{s-p+r}^p from phi[r-1], phi[r]
+            m = s - p + r
+            v = 0.0
+            if m >= 0 and m + p + 1 <= last:
+                if r > 0:
+                    v = (x - knots[m]) / (knots[m + p] - knots[m]) * phi[r - 1]
+                if r < p:
+                    v += (knots[m + p + 1] - x) / (knots[m + p + 1] - knots[m + 1]) * phi[r]
+            phi[r] = v
 
 
-def gaussian_rbf(x: NDArray, centres: NDArray, h: float) -> NDArray:
-    """GRBF basis exp(-(x - c_m)² / (2h²)), x (..., n) -> (..., n, G)."""
-    d = (x[..., None] - centres) / h
-    return np.exp(-0.5 * d * d)
+@nb.njit(cache=True, inline="always")
+def bspline_kan_layer(x: NDArray, y: NDArray, n_i: int, n_o: int, table: NDArray, rows: NDArray,
+                      knots: NDArray, order: int, phi: NDArray) -> None:
+    """y[:n_o] = Φ(x[:n_i]) of a B-spline KAN layer: y_j = Σ_i β_ji SiLU(x_i) + Σ_m α_ji c_jim
+    B_m(x_i). Only the order + 1 bases of each input's knot span enter the sums (none outside the
+    grid); cubic bases in the cardinal form of the torch module, other orders by the local
+    Cox-de Boor recursion."""
+    n_basis = knots.shape[0] - order - 1
+    y[:n_o] = 0.0
+    for i in range(n_i):
+        xi = x[i]
+        _add_row(y, xi / (1.0 + np.exp(-xi)), table, rows[2] + i, n_o)
+        s = bspline_span(xi, knots)
+        if s < 0:
+            continue
+        if order == 3:
+            cardinal_cubic_bases(xi, s, knots, phi)
+        else:
+            de_boor_bases(xi, s, knots, order, phi)
+        for r in range(order + 1):
+            m = s - order + r
+            if 0 <= m < n_basis:
+                _add_row(y, phi[r], table, rows[1] + i * n_basis + m, n_o)
 
 
-def rswaf(x: NDArray, centres: NDArray, h: float) -> NDArray:
-    """RSWAF basis 1 - tanh²((x - c_m)/h), x (..., n) -> (..., n, G)."""
-    t = np.tanh((x[..., None] - centres) / h)
-    return 1.0 - t * t
+@nb.njit(cache=True, inline="always")
+def radial_bases(x: float, centres: NDArray, h: float, kind: int, phi: NDArray) -> None:
+    """phi[m] = ψ_m(x) for the G centres, d = (x - c_m)/h: GRBF exp(-d²/2) (``kind`` = GRBF) or
+    RSWAF 1 - tanh²(d) (``kind`` = RSWAF), evaluated as sech²(d) = 4e/(1 + e)², e = exp(-2|d|)
+    (one exp instead of a tanh; no cancellation in the tails)."""
+    for m in range(centres.shape[0]):
+        d = (x - centres[m]) / h
+        if kind == GRBF:
+            phi[m] = np.exp(-0.5 * d * d)
+        else:
+            e = np.exp(-2.0 * abs(d))
+            phi[m] = 4.0 * e / ((1.0 + e) * (1.0 + e))
 
 
-def _silu(x: NDArray) -> NDArray:
-    return x / (1.0 + np.exp(-x))
+@nb.njit(cache=True, inline="always")
+def radial_kan_layer(x: NDArray, y: NDArray, n_i: int, n_o: int, table: NDArray, rows: NDArray,
+                     centres: NDArray, h: float, kind: int, phi: NDArray) -> None:
+    """y[:n_o] = Φ(x[:n_i]) of a GRBF or RSWAF KAN layer: y_j = Σ_i Σ_m θ_jim ψ_m(x_i)."""
+    n_basis = centres.shape[0]
+    y[:n_o] = 0.0
+    for i in range(n_i):
+        radial_bases(x[i], centres, h, kind, phi)
+        for m in range(n_basis):
+            _add_row(y, phi[m], table, rows[1] + i * n_basis + m, n_o)
 
 
-def _gelu(x: NDArray) -> NDArray:
-    return 0.5 * x * (1.0 + erf(x / math.sqrt(2.0)))
-
-
-@nb.njit(cache=True, fastmath=True)
-def bspline_kan_forward_kernel(z: NDArray, widths: NDArray, w_off: NDArray, b_off: NDArray,
-                               n_off: NDArray, flat: NDArray, knots: NDArray, step: float,
-                               n_basis: int) -> float:
-    """Compiled single-sample forward of a cubic B-spline KAN -> net output (before the target
-    de-normalisation). Layer l's tensors live in ``flat`` at the offsets w_off[l] (α·c, (O, I·M)
-    row-major), b_off[l] (SiLU base weights β, (O, I)) and n_off[l] (LayerNorm weight then bias;
-    -1 when absent). Only the <= 4 non-zero cubic bases of each input enter the sums. Measured
-    (CPU time, n = 32, ℓ = 3, G = 11): ~20 µs against ~55 µs for the numpy path."""
-    n_layers = widths.shape[0] - 1
-    x = z.copy()
-    for l in range(n_layers):
-        n_i = widths[l]
-        n_o = widths[l + 1]
-        if n_off[l] >= 0:
-            mu = 0.0
-            for i in range(n_i):
-                mu += x[i]
-            mu /= n_i
-            var = 0.0
-            for i in range(n_i):
-                x[i] -= mu
-                var += x[i] * x[i]
-            scale = 1.0 / np.sqrt(var / n_i + 1e-5)
-            for i in range(n_i):
-                x[i] = x[i] * (flat[n_off[l] + i] * scale) + flat[n_off[l] + n_i + i]
-        phi = np.zeros(n_i * 4)
-        first = np.empty(n_i, dtype=np.int64)
-        silu = np.empty(n_i)
-        for i in range(n_i):
-            m0 = max(int(np.floor((x[i] - knots[0]) / step)) - 3, 0)
-            first[i] = m0
-            for r in range(4):
-                m = m0 + r
-                if m < n_basis:
-                    s = abs((x[i] - knots[m]) / step - 2.0)
-                    a = max(2.0 - s, 0.0)
-                    b = max(1.0 - s, 0.0)
-                    phi[i * 4 + r] = (a * a * a - 4.0 * b * b * b) / 6.0
-            silu[i] = x[i] / (1.0 + np.exp(-x[i]))
-        y = np.empty(n_o)
-        k = n_i * n_basis
+@nb.njit(cache=True, inline="always")
+def mlp_layer(x: NDArray, y: NDArray, n_i: int, n_o: int, table: NDArray, rows: NDArray,
+              kind: int, hidden: bool) -> None:
+    """y[:n_o] = act(W x[:n_i] + b), act = ReLU or GELU 0.5 v (1 + erf(v/√2)) on hidden layers,
+    none on the output layer. Zero inputs (after a ReLU) are skipped."""
+    y[:n_o] = table[rows[2], :n_o]
+    for i in range(n_i):
+        if x[i] != 0.0:
+            _add_row(y, x[i], table, rows[1] + i, n_o)
+    if hidden:
         for j in range(n_o):
-            acc = 0.0
-            base = w_off[l] + j * k
-            for i in range(n_i):
-                row = base + i * n_basis + first[i]
-                for r in range(min(4, n_basis - first[i])):
-                    acc += flat[row + r] * phi[i * 4 + r]
-            bb = b_off[l] + j * n_i
-            for i in range(n_i):
-                acc += flat[bb + i] * silu[i]
-            y[j] = acc
-        x = y
-    return x[0]
+            v = y[j]
+            y[j] = v * 0.5 * (1.0 + math.erf(v * _SQRT1_2)) if kind == GELU else max(v, 0.0)
+
+
+@nb.njit(cache=True)
+def network_forward(z: NDArray, kind: int, widths: NDArray, rows: NDArray, table: NDArray,
+                    grid: NDArray, order: int, h: float) -> NDArray:
+    """Network output (before the target de-normalisation) of z-scored features z (B, n_in) ->
+    (B,): the layers of family ``kind`` in turn, a LayerNorm first where ``rows[l, 0] >= 0``.
+    ``grid``: the knots (B-spline KAN) or centres (radial KAN; unused by MLPs); ``order``: the
+    B-spline order; ``h``: the radial basis width."""
+    n_layers = widths.shape[0] - 1
+    x = np.empty(table.shape[1])
+    y = np.empty(table.shape[1])
+    phi = np.empty(order + 1 if kind == BSPLINE else grid.shape[0])
+    out = np.empty(z.shape[0])
+    for b in range(z.shape[0]):
+        for i in range(widths[0]):
+            x[i] = z[b, i]
+        for l in range(n_layers):
+            n_i, n_o = widths[l], widths[l + 1]
+            if rows[l, 0] >= 0:
+                _layer_norm(x, n_i, table, rows[l, 0])
+            if kind == BSPLINE:
+                bspline_kan_layer(x, y, n_i, n_o, table, rows[l], grid, order, phi)
+            elif kind == GRBF or kind == RSWAF:
+                radial_kan_layer(x, y, n_i, n_o, table, rows[l], grid, h, kind, phi)
+            else:
+                mlp_layer(x, y, n_i, n_o, table, rows[l], kind, l < n_layers - 1)
+            x, y = y, x
+        out[b] = x[0]
+    return out
 
 
 class NumpyNet:
-    """float64 numpy forward pass of a network given its tensors (names as ``Arch.tensor_shapes``)."""
+    """float64 inference forward of a network given its tensors (names as ``Arch.tensor_shapes``),
+    packed once here and run by :func:`network_forward`; the torch modules stay the training path."""
 
     def __init__(self, arch: Arch, tensors: Mapping[str, NDArray]) -> None:
         self.arch = arch
@@ -274,108 +369,63 @@ class NumpyNet:
         self.feature_inv_std = 1.0 / t["feature_std"]
         self.target_mean = float(t["target_mean"][0])
         self.target_std = float(t["target_std"][0])
-        self._layers: list[dict[str, Any]] = []
-        w = arch.widths
-        for l in range(arch.layers):
-            pre = f"layers.{l}."
-            n_i, n_o = w[l], w[l + 1]
-            d: dict[str, Any] = {"n_in": n_i}
-            if arch.layer_norm_on(l):
-                d["norm_w"], d["norm_b"] = t[pre + "norm.weight"], t[pre + "norm.bias"]
-            if arch.family == "cikan":
-                eff = t[pre + "spline_weight"] * t[pre + "spline_scaler"][..., None]
-                d["spline"] = np.ascontiguousarray(eff.reshape(n_o, n_i * arch.n_basis))
-                d["base"] = t[pre + "base_weight"]
-            elif arch.is_kan:
-                d["coef"] = np.ascontiguousarray(t[pre + "coef"].reshape(n_o, n_i * arch.n_basis))
-            else:
-                d["weight"], d["bias"] = t[pre + "weight"], t[pre + "bias"]
-            self._layers.append(d)
+        self._n_in = arch.n_in
+        kind = FAMILIES.index(arch.family)
         # The torch modules hold grids as float32 buffers: use the same values here.
-        self._knots = arch.knots().astype(np.float32).astype(np.float64)
-        self._centres = arch.centres().astype(np.float32).astype(np.float64)
-        self._h = arch.basis_width
-        self._packed = self._pack() if arch.family == "cikan" and arch.order == 3 else None
+        grid = (arch.knots() if kind == BSPLINE else arch.centres()).astype(np.float32)
+        h = arch.basis_width if kind in (GRBF, RSWAF) else 0.0
+        self._args = (kind, *self._pack(t), grid.astype(np.float64), arch.order, float(h))
+        # Compile (or load from numba's cache) here, at model load, not at the first update.
+        network_forward(np.zeros((1, arch.n_in)), *self._args)
 
-    def _pack(self) -> tuple:
-        """Arguments of :func:`bspline_kan_forward_kernel`: all tensors in one float64 array,
-        the float32-rounded knots of the torch buffer and their spacing."""
-        parts, w_off, b_off, n_off = [], [], [], []
-        pos = 0
-        for d in self._layers:
-            if "norm_w" in d:
-                n_off.append(pos)
-                parts += [d["norm_w"], d["norm_b"]]
-                pos += 2 * d["n_in"]
+    def _pack(self, t: Mapping[str, NDArray]) -> tuple[NDArray, NDArray, NDArray]:
+        """(widths, rows, table) of :func:`network_forward`: every tensor once, as rows of one
+        table (row-major (R, max width), zero-padded)."""
+        a = self.arch
+        blocks: list[NDArray] = []
+        rows = np.full((a.layers, 3), -1, dtype=np.int64)
+        n_rows = 0
+
+        def put(l: int, col: int, block: NDArray) -> None:   # block (rows, <= max width)
+            nonlocal n_rows
+            rows[l, col] = n_rows
+            blocks.append(block)
+            n_rows += block.shape[0]
+
+        for l in range(a.layers):
+            pre = f"layers.{l}."
+            if a.layer_norm_on(l):
+                put(l, 0, np.stack([t[pre + "norm.weight"], t[pre + "norm.bias"]]))
+            if a.family == "cikan":
+                eff = t[pre + "spline_weight"] * t[pre + "spline_scaler"][..., None]
+                put(l, 1, eff.reshape(eff.shape[0], -1).T)           # (I·M, O)
+                put(l, 2, t[pre + "base_weight"].T)                  # (I, O)
+            elif a.is_kan:
+                coef = t[pre + "coef"]
+                put(l, 1, coef.reshape(coef.shape[0], -1).T)         # (I·M, O)
             else:
-                n_off.append(-1)
-            w_off.append(pos)
-            parts.append(d["spline"].ravel())
-            pos += d["spline"].size
-            b_off.append(pos)
-            parts.append(d["base"].ravel())
-            pos += d["base"].size
-        return (np.array(self.arch.widths, dtype=np.int64), np.array(w_off, dtype=np.int64),
-                np.array(b_off, dtype=np.int64), np.array(n_off, dtype=np.int64),
-                np.ascontiguousarray(np.concatenate([np.ravel(p) for p in parts])),
-                self._knots.copy(), float(self._knots[1] - self._knots[0]), self.arch.n_basis)
+                put(l, 1, t[pre + "weight"].T)                       # (I, O)
+                put(l, 2, t[pre + "bias"][None, :])                  # (1, O)
+        table = np.zeros((n_rows, max(a.widths)))
+        for r0, block in zip(np.cumsum([0] + [b.shape[0] for b in blocks]), blocks):
+            table[r0:r0 + block.shape[0], :block.shape[1]] = block
+        return np.array(a.widths, dtype=np.int64), rows, table
 
     def normalise(self, feats: NDArray) -> NDArray:
-        """z-score raw features (..., 12) with the training statistics."""
+        """z-score raw features (..., n_in) with the training statistics."""
         return (feats - self.feature_mean) * self.feature_inv_std
 
     def forward(self, z: NDArray) -> NDArray:
-        """ln|τ| predictions for z-scored features z (B, 12) -> (B,)."""
-        x = np.asarray(z, dtype=np.float64)
-        a = self.arch
-        last = a.layers - 1
-        for l, d in enumerate(self._layers):
-            if "norm_w" in d:
-                mu = x.mean(axis=-1, keepdims=True)
-                var = ((x - mu) ** 2).mean(axis=-1, keepdims=True)
-                x = (x - mu) / np.sqrt(var + LAYERNORM_EPS) * d["norm_w"] + d["norm_b"]
-            if a.family == "cikan":
-                basis = cubic_bspline_uniform(x, self._knots) if a.order == 3 \
-                    else bspline_cox_de_boor(x, self._knots, a.order)
-                x = basis.reshape(x.shape[0], -1) @ d["spline"].T + _silu(x) @ d["base"].T
-            elif a.family == "grbf":
-                x = gaussian_rbf(x, self._centres, self._h).reshape(x.shape[0], -1) @ d["coef"].T
-            elif a.family == "rswaf":
-                x = rswaf(x, self._centres, self._h).reshape(x.shape[0], -1) @ d["coef"].T
-            else:
-                x = x @ d["weight"].T + d["bias"]
-                if l < last:
-                    x = np.maximum(x, 0.0) if a.family == "relu" else _gelu(x)
-        return self.target_mean + self.target_std * x[:, 0]
+        """ln|τ| predictions for z-scored features z (B, n_in) -> (B,)."""
+        z = np.ascontiguousarray(z, dtype=np.float64)
+        if z.ndim != 2 or z.shape[1] != self._n_in:
+            raise ValueError(f"features must have shape (B, {self._n_in}), got {z.shape}")
+        return self.target_mean + self.target_std * network_forward(z, *self._args)
 
     def forward_one(self, z: NDArray) -> float:
-        """ln|τ| for one z-scored feature vector z (12,): the governor's path (no batch axis).
-        Cubic B-spline KANs run the compiled kernel, the others numpy (all equal
-        :meth:`forward_one_numpy` to rounding)."""
-        if self._packed is not None:
-            out = bspline_kan_forward_kernel(np.asarray(z, dtype=np.float64), *self._packed)
-            return self.target_mean + self.target_std * out
-        return self.forward_one_numpy(z)
-
-    def forward_one_numpy(self, z: NDArray) -> float:
-        """:meth:`forward_one` with numpy array operations only (the reference path)."""
-        x = z
-        a = self.arch
-        last = a.layers - 1
-        for l, d in enumerate(self._layers):
-            if "norm_w" in d:
-                x = x - x.mean()
-                x = x * (d["norm_w"] / math.sqrt(float(x @ x) / d["n_in"] + LAYERNORM_EPS)) + d["norm_b"]
-            if a.family == "cikan":
-                basis = cubic_bspline_uniform(x, self._knots) if a.order == 3 \
-                    else bspline_cox_de_boor(x, self._knots, a.order)
-                x = d["spline"] @ basis.ravel() + d["base"] @ (x / (1.0 + np.exp(-x)))
-            elif a.family == "grbf":
-                x = d["coef"] @ gaussian_rbf(x, self._centres, self._h).ravel()
-            elif a.family == "rswaf":
-                x = d["coef"] @ rswaf(x, self._centres, self._h).ravel()
-            else:
-                x = d["weight"] @ x + d["bias"]
-                if l < last:
-                    x = np.maximum(x, 0.0) if a.family == "relu" else _gelu(x)
-        return self.target_mean + self.target_std * float(x[0])
+        """ln|τ| for one z-scored feature vector z (n_in,): the governor's path, the batch kernel
+        on a (1, n_in) view."""
+        z = np.ascontiguousarray(z, dtype=np.float64)
+        if z.shape != (self._n_in,):
+            raise ValueError(f"features must have shape ({self._n_in},), got {z.shape}")
+        return self.target_mean + self.target_std * float(network_forward(z.reshape(1, -1), *self._args)[0])

@@ -1,18 +1,24 @@
 """The learned governors' section of ``cikan bench`` (appended to ``cikan_ros.bench.SECTIONS``).
 
 Per shipped model ``<m>`` in ``models/``, on the same active-phase update states as the
-conventional TSG and in the same run:
+conventional TSG and in the same run, under the default update rule (``learned.algorithm``,
+"keep" unless configured otherwise):
 
 - ``<m>_update_ms_mean`` / ``<m>_update_ms_max``: wall time of one whole update (network,
-  Verify, any bisection), median of ``repeats`` per state, then mean / max over states;
+  Verify, any bisection; CPU time of the thread, see ``cikan_ros.bench``), median of
+  ``repeats`` per state, then mean / max over states;
 - ``<m>_speedup_mean`` = conventional mean / learned mean, ``<m>_speedup_worst`` = conventional
   max / learned max, the conventional TSG being timed again in this section, interleaved state
   by state with the learned ones (``learned_conventional_update_ms_mean`` / ``_max``);
-- ``<m>_nn_accept_rate``: fraction of these updates whose network proposal passed Verify and was
-  returned (path "nn"; every state here consults the network since tau_prev < 0);
-- ``<m>_verify_calls_mean``, ``<m>_forward_us_mean`` (features + network alone),
-  ``<m>_rmse_tau_s``: RMSE of the learned answer against pi* at the same state (both from the same
-  tau_prev);
+- ``<m>_nn_accept_rate``: share of these updates whose network proposal passed Verify and was
+  returned (path "nn"); ``<m>_hold_rate``: share answered with tau_{k-1} itself;
+  ``<m>_no_search_rate``: share answered without any bisection (paths "nn" and "keep");
+- ``<m>_verify_calls_mean`` / ``<m>_verify_calls_max``, ``<m>_forward_us_mean`` (features +
+  network alone), ``<m>_rmse_tau_s``: RMSE of the answer against pi* at the same state (same
+  tau_prev; ``mission.errors_against_optimal``);
+- ``<m>_paper_update_ms_mean`` / ``_max``, ``<m>_paper_speedup_mean`` / ``_worst``,
+  ``<m>_paper_verify_calls_mean``: the same network under the other rule (the paper's
+  Algorithm 1 when the default is "keep"), timed in the same interleaved rounds;
 - ``dataset_labels_per_s``: label generation rate of ``cikan dataset`` in this process (one core,
   kernels warm), over a fixed set of missions.
 """
@@ -22,17 +28,21 @@ from __future__ import annotations
 import json
 import statistics
 import time
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
-from ..bench import BenchStates
+from ..bench import BenchStates, timed_update
 from ..config import Config
-from ..governor import LEARNED_NAMES, PATH_NN, ConventionalGovernor
+from ..governor import LEARNED_NAMES, PATH_KEEP, PATH_NN, ConventionalGovernor
+from ..mission import errors_against_optimal, rmse
 from ..tsg import Predictor
 from .errors import ModelFileError
 
 _PREDICTOR: dict[str, Predictor] = {}
+#: Paths that answer without any bisection.
+NO_SEARCH_PATHS = (PATH_NN, PATH_KEEP)
 
 
 def _predictor(cfg: Config) -> Predictor:
@@ -59,7 +69,7 @@ def dataset_rate(cfg: Config, pred: Predictor, missions: int = 8) -> dict[str, A
 
 def interleaved_times(governors: list[Any], states: BenchStates, repeats: int
                       ) -> list[tuple[np.ndarray, np.ndarray, list[str], np.ndarray]]:
-    """Per governor: per-state median wall time (s), tau, path, Verify calls, with the governors
+    """Per governor: per-state median CPU time (s), tau, path, Verify calls, with the governors
     timed in turn on each state (round-robin, ``repeats`` rounds) so a change of machine load
     during the run hits all of them alike."""
     n = len(states.updates)
@@ -71,17 +81,35 @@ def interleaved_times(governors: list[Any], states: BenchStates, repeats: int
         runs: list[list[Any]] = [[] for _ in governors]
         for _ in range(repeats):
             for g, gov in enumerate(governors):
-                runs[g].append(gov.update(s.x_d, s.x_c, s.t, s.tau_prev))
+                runs[g].append(timed_update(gov, s))
         for g in range(len(governors)):
-            walls[g][i] = statistics.median(r.wall_s for r in runs[g])
-            taus[g][i] = runs[g][0].tau_s
-            calls[g][i] = runs[g][0].verify_calls
-            paths[g].append(runs[g][0].path)
+            walls[g][i] = statistics.median(cpu for _, cpu in runs[g])
+            rec = runs[g][0][0]
+            taus[g][i], calls[g][i] = rec.tau_s, rec.verify_calls
+            paths[g].append(rec.path)
     return list(zip(walls, taus, paths, calls))
 
 
+def _rule_figures(prefix: str, walls: np.ndarray, taus: np.ndarray, paths: list[str],
+                  calls: np.ndarray, conv_walls: np.ndarray, errors: np.ndarray,
+                  tau_prev: np.ndarray) -> dict[str, Any]:
+    return {
+        f"{prefix}_update_ms_mean": float(walls.mean() * 1e3),
+        f"{prefix}_update_ms_max": float(walls.max() * 1e3),
+        f"{prefix}_speedup_mean": float(conv_walls.mean() / walls.mean()),
+        f"{prefix}_speedup_worst": float(conv_walls.max() / walls.max()),
+        f"{prefix}_nn_accept_rate": paths.count(PATH_NN) / len(paths),
+        f"{prefix}_hold_rate": float(np.mean(taus == tau_prev)),
+        f"{prefix}_no_search_rate": sum(p in NO_SEARCH_PATHS for p in paths) / len(paths),
+        f"{prefix}_verify_calls_mean": float(calls.mean()),
+        f"{prefix}_verify_calls_max": int(calls.max()),
+        f"{prefix}_rmse_tau_s": rmse(errors),
+    }
+
+
 def learned_section(cfg: Config, states: BenchStates, repeats: int) -> dict[str, Any]:
-    """Figures of every shipped learned governor on the benchmark's update states.
+    """Figures of every shipped learned governor on the benchmark's update states, under the
+    configured rule and under the other one.
 
     The conventional TSG is timed again here, interleaved state by state with the learned
     governors (:func:`interleaved_times`); the speed-ups use those times. The conventional
@@ -89,38 +117,40 @@ def learned_section(cfg: Config, states: BenchStates, repeats: int) -> dict[str,
     from .governor import load_learned_governor
 
     pred = _predictor(cfg)
+    other = "paper" if cfg.learned.algorithm != "paper" else "keep"
+    pred_other = _predictor(cfg.replace(**{"learned.algorithm": other}))
     govs: list[Any] = []
-    out: dict[str, Any] = {}
+    govs_other: list[Any] = []
+    out: dict[str, Any] = {"learned_algorithm": cfg.learned.algorithm, "learned_algorithm_other": other}
     missing = []
     for name in LEARNED_NAMES:
         try:
             govs.append(load_learned_governor(name, pred))
+            govs_other.append(load_learned_governor(name, pred_other))
         except ModelFileError as exc:
             missing.append(f"{name}: {exc}")
-    results = interleaved_times([ConventionalGovernor(pred)] + govs, states, repeats)
-    conv_walls, conv_taus = results[0][0], results[0][1]
+    results = interleaved_times([ConventionalGovernor(pred)] + govs + govs_other, states, repeats)
+    conv_walls = results[0][0]
+    tau_prev = np.array([s.tau_prev for s in states.updates])
     out["learned_conventional_update_ms_mean"] = float(conv_walls.mean() * 1e3)
     out["learned_conventional_update_ms_max"] = float(conv_walls.max() * 1e3)
-    for gov, (walls, taus, paths, calls) in zip(govs, results[1:]):
+    n = len(govs)
+    for i, gov in enumerate(govs):
         name = gov.name
+        for prefix, (walls, taus, paths, calls) in ((name, results[1 + i]),
+                                                    (f"{name}_{other}", results[1 + n + i])):
+            answered = [replace(s, tau=float(t)) for s, t in zip(states.updates, taus)]
+            out.update(_rule_figures(prefix, walls, taus, paths, calls, conv_walls,
+                                     errors_against_optimal(pred, answered), tau_prev))
         fwd = []
         for s in states.updates:
             runs = []
             for _ in range(repeats):
-                t0 = time.perf_counter()
-                gov.proposal(s.x_d, s.x_c)
-                runs.append(time.perf_counter() - t0)
+                t0 = time.thread_time()
+                gov.proposal(s.x_d, s.x_c, s.tau_prev)
+                runs.append(time.thread_time() - t0)
             fwd.append(statistics.median(runs))
-        out.update({
-            f"{name}_update_ms_mean": float(walls.mean() * 1e3),
-            f"{name}_update_ms_max": float(walls.max() * 1e3),
-            f"{name}_speedup_mean": float(conv_walls.mean() / walls.mean()),
-            f"{name}_speedup_worst": float(conv_walls.max() / walls.max()),
-            f"{name}_nn_accept_rate": paths.count(PATH_NN) / len(paths),
-            f"{name}_verify_calls_mean": float(calls.mean()),
-            f"{name}_forward_us_mean": float(np.mean(fwd) * 1e6),
-            f"{name}_rmse_tau_s": float(np.sqrt(np.mean((taus - conv_taus) ** 2))),
-        })
+        out[f"{name}_forward_us_mean"] = float(np.mean(fwd) * 1e6)
     if missing:
         out["learned_models_missing"] = missing
     out.update(dataset_rate(cfg, pred))

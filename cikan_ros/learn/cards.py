@@ -1,36 +1,112 @@
-"""A Markdown table of the shipped models from their cards: ``python -m cikan_ros.learn.cards``."""
+"""Tables of the shipped models from their cards, and the loss breakdown on a dataset.
+
+``cikan models`` prints them (``--out models/README.md`` rewrites that page): every figure of
+``models/README.md`` comes from here, none is typed by hand.
+
+- :func:`card_table`: size, parameter counts, the paper's complexity, losses (the paper's
+  definition, L = mean((y - ŷ)²) + θ_c mean(ReLU(y - ŷ)²), y = ln|τ*|), training budget and
+  TPE study of each model directory under ``models/``, next to the paper's L_val.
+- :func:`loss_breakdown`: the same loss (θ_c = 1) of each model on one split of a dataset,
+  by band of |τ*| and by kind of update: "hold" (π* within 1e-4 s of τ_{k-1}: the deputy rides
+  the line-of-sight cone) or "move".
+"""
 
 from __future__ import annotations
 
-from ..governor import LEARNED_NAMES
-from .errors import ModelFileError
-from .modelfile import load_model
+from pathlib import Path
+from typing import Any
 
+import numpy as np
+
+from .errors import ModelFileError
+from .modelfile import MODELS_DIR, LoadedModel, load_model
+
+#: The paper's validation losses (Table 2, ×1e-3 there).
 PAPER_VAL = {"cikan": 1.2615e-3, "grbf": 1.1540e-3, "rswaf": 1.2610e-3, "relu": 1.6458e-3,
              "gelu": 1.8538e-3}
+#: Bands of |τ*| (s) of the breakdown.
+BANDS = ((0.0, 0.05), (0.05, 1.0), (1.0, 5.0), (5.0, np.inf))
+#: π* within this of τ_{k-1} (s) is a "hold" update.
+HOLD_S = 1e-4
 
 
-def table() -> str:
-    rows = ["| model | (n, l, G) | params | n²l(G+3) | θ_c | L_train | L_val | L_test | L_val (θ_c=1) | L_val paper "
-            "| RMSE τ test (s) | epochs | CPU wall (s) | TPE trials (complete/pruned) |",
-            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    for name in LEARNED_NAMES:
+def shipped_models(root: Path = MODELS_DIR) -> list[LoadedModel | tuple[str, str]]:
+    """Every model directory under ``root`` (sorted), loaded and checked, or (name, error)."""
+    out: list[LoadedModel | tuple[str, str]] = []
+    for d in sorted(p for p in root.iterdir() if (p / "card.json").exists()):
         try:
-            m = load_model(name)
+            out.append(load_model(d))
         except ModelFileError as exc:
-            rows.append(f"| {name} | missing: {exc} |")
+            out.append((d.name, str(exc)))
+    return out
+
+
+def card_table(models: list[LoadedModel | tuple[str, str]]) -> str:
+    """Markdown: one row per model directory, from its card."""
+    rows = ["| model | inputs | (n, l, G) | params | n²l(G+3) | θ_c | L_train | L_val | L_test "
+            "| L_val (θ_c=1) | L_val paper | RMSE τ test (s) | train labels | epochs | CPU wall (s) "
+            "| TPE trials (complete/pruned) |",
+            "|" + "---|" * 16]
+    for m in models:
+        if isinstance(m, tuple):
+            rows.append(f"| {m[0]} | unreadable: {m[1]} |" + " |" * 14)
             continue
         a, c = m.arch, m.card
         L, tr, tun = c["losses"], c["training"], c.get("tuning", {})
         size = f"({a.width}, {a.layers}, {a.grid})" if a.is_kan else f"({a.width}, {a.layers}, -)"
+        labels = c.get("dataset", {}).get("split_labels", {}).get("train", "-")
         rows.append(
-            f"| {name} | {size} | {a.n_params():,} | {a.complexity():,} | {L['theta_c']:.2f} "
-            f"| {L['train']['loss']:.3e} | {L['val']['loss']:.3e} | {L['test']['loss']:.3e} "
-            f"| {L['val']['loss_theta1']:.3e} | {PAPER_VAL[name]:.3e} | {L['test']['rmse_tau_s']:.3f} | {tr['epochs_run']}/{tr['epochs']} "
+            f"| {m.path.name} | {a.features} | {size} | {a.n_params():,} | {a.complexity():,} "
+            f"| {L['theta_c']:.2f} | {L['train']['loss']:.3e} | {L['val']['loss']:.3e} "
+            f"| {L['test']['loss']:.3e} | {L['val']['loss_theta1']:.3e} | {PAPER_VAL[a.family]:.3e} "
+            f"| {L['test']['rmse_tau_s']:.3f} | {labels:,} | {tr['epochs_run']}/{tr['epochs']} "
             f"| {tr['cpu_budget']['wall_s']:.0f} | {tun.get('trials', 0)} "
             f"({tun.get('complete', 0)}/{tun.get('pruned', 0)}) |")
-    return "\n".join(rows)
+    return "\n".join(rows) + "\n"
 
 
-if __name__ == "__main__":
-    print(table())
+def loss_breakdown(models: list[LoadedModel | tuple[str, str]], data_path: str | Path,
+                   split: str = "val") -> str:
+    """Markdown: loss (θ_c = 1) of each model on ``split`` of a dataset, by |τ*| band and by
+    hold/move update, with the share of labels in each group."""
+    from .arch import NumpyNet
+    from .dataset import XC_COLS, XD_COLS, read_parquet
+    from .features import features
+    from .loss import cinn_log_loss_np
+
+    df, _ = read_parquet(data_path)
+    part = df[df["split"] == split]
+    tau = part["tau_star_s"].to_numpy(dtype=float)
+    prev = part["tau_prev_s"].to_numpy(dtype=float)
+    y = np.log(-tau)
+    groups: list[tuple[str, np.ndarray]] = [("all", np.ones(len(y), bool))]
+    groups += [(f"|τ*| in [{lo:g}, {hi:g}) s", (-tau >= lo) & (-tau < hi)) for lo, hi in BANDS]
+    hold = (tau - prev) <= HOLD_S
+    groups += [("hold (π* - τ_{k-1} <= 1e-4 s)", hold), ("move", ~hold)]
+    ok = [m for m in models if not isinstance(m, tuple)]
+    head = "| labels | share | " + " | ".join(m.path.name for m in ok) + " |"
+    lines = [f"Split `{split}` of `{Path(data_path).name}` ({len(y):,} labels); loss = the paper's "
+             "definition at θ_c = 1.", "", head, "|" + "---|" * (2 + len(ok))]
+    preds = {}
+    x_d = part[list(XD_COLS)].to_numpy()
+    x_c = part[list(XC_COLS)].to_numpy()
+    for m in ok:
+        net = NumpyNet(m.arch, m.tensors)
+        preds[m.path.name] = net.forward(net.normalise(features(x_d, x_c, m.arch.features, prev)))
+    for name, mask in groups:
+        cells = [f"{cinn_log_loss_np(preds[m.path.name][mask], y[mask]):.3e}" if mask.any() else "-"
+                 for m in ok]
+        lines.append(f"| {name} | {mask.mean():.1%} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def models_page(intro: str, data_path: str | Path | None, split: str = "val",
+                root: Path = MODELS_DIR) -> tuple[str, dict[str, Any]]:
+    """The whole ``models/README.md``: a fixed introduction, then the generated tables."""
+    models = shipped_models(root)
+    parts = [intro.rstrip() + "\n", "## Models (from the cards)\n", card_table(models)]
+    if data_path is not None:
+        parts += ["\n## Loss by |τ*| band and by hold/move update\n", loss_breakdown(models, data_path, split)]
+    parts.append("\n*Generated by `cikan models" + (f" --data {data_path}" if data_path else "")
+                 + " --out models/README.md`; do not edit the tables by hand.*\n")
+    return "\n".join(parts), {"models": len(models)}

@@ -6,7 +6,7 @@ its position spread sigma ~ U[sigma_min, sigma_max] km, its split (train/val/tes
 draw against the split fractions) and the seed of its start (``mission.sample_start``). Each
 mission is one conventional closed loop (``mission.run_mission``); every active update
 (tau_{k-1} < 0) whose answer tau* = pi*(x) is strictly negative gives one label, with the states
-as the governor saw them (through SI, as in ``cikan_ros.bench.collect_states``). The dataset is
+as the governor saw them (through SI, ``MissionResult.update_states``). The dataset is
 the labels of missions 0, 1, 2, ... in order, cut at exactly N labels, so the result depends on
 the seed only: not on the number of workers nor on where they run (local processes or Dask).
 """
@@ -30,16 +30,16 @@ from ..governor import ConventionalGovernor
 from ..mission import MissionResult, run_mission, sample_start
 from ..parallel import ordered_map
 from ..tsg import Predictor
-from ..units import through_si
 from .errors import DatasetError
 
 #: Parquet columns: state components as the governor saw them (km, km/s, ECI), labels in s.
 XD_COLS = tuple(f"xd{i}" for i in range(6))
 XC_COLS = tuple(f"xc{i}" for i in range(6))
-COLUMNS = ("mission", "split", "t_s", *XD_COLS, *XC_COLS, "tau_prev_s", "tau_star_s", "sigma_km")
+COLUMNS = ("mission", "split", "t_s", "update_k", *XD_COLS, *XC_COLS, "tau_prev_s", "tau_star_s",
+           "sigma_km")
 SPLITS = ("train", "val", "test")
 #: Version of the label recipe, stored in the file; bump when labels change meaning.
-RECIPE = "conventional-updates-v1"
+RECIPE = "conventional-updates-v2"  # v2: adds update_k, the update index
 
 
 @dataclass(frozen=True)
@@ -75,29 +75,20 @@ def mission_plan(spec: DatasetSpec, mission: int) -> tuple[float, str, int]:
 
 
 def update_labels(res: MissionResult) -> dict[str, NDArray]:
-    """Labels of one conventional mission: every update with tau_{k-1} < 0 and tau* < 0.
+    """Labels of one conventional mission: every active update (tau_{k-1} < 0) with tau* < 0.
 
-    States are those the governor was given (``through_si``), as ``bench.collect_states`` takes
-    them; tau* is the governor's answer there, i.e. pi* over [tau_{k-1}, 0].
+    States are those the governor was given (through SI; ``MissionResult.update_states``, as the
+    benchmark takes them); tau* is the governor's answer there, i.e. pi* over [tau_{k-1}, 0].
     """
-    tc = res.config.control.period_s
-    rows_t, rows_xd, rows_xc, rows_prev, rows_tau = [], [], [], [], []
-    for t_u, rec in zip(res.update_t, res.updates):
-        k = int(round(t_u / tc))
-        tau_prev = float(res.tau[k - 1])
-        if tau_prev < 0.0 and rec.tau_s < 0.0:
-            rows_t.append(float(res.t[k]))
-            rows_xd.append(through_si(res.x_d[k]))
-            rows_xc.append(through_si(res.x_c[k]))
-            rows_prev.append(tau_prev)
-            rows_tau.append(rec.tau_s)
-    n = len(rows_t)
+    states = [s for s in res.update_states() if s.tau < 0.0]
+    n = len(states)
     return {
-        "t_s": np.array(rows_t, dtype=float),
-        "x_d": np.array(rows_xd, dtype=float).reshape(n, 6),
-        "x_c": np.array(rows_xc, dtype=float).reshape(n, 6),
-        "tau_prev_s": np.array(rows_prev, dtype=float),
-        "tau_star_s": np.array(rows_tau, dtype=float),
+        "t_s": np.array([s.t for s in states], dtype=float),
+        "update_k": np.array([s.k for s in states], dtype=np.int64),
+        "x_d": np.array([s.x_d for s in states], dtype=float).reshape(n, 6),
+        "x_c": np.array([s.x_c for s in states], dtype=float).reshape(n, 6),
+        "tau_prev_s": np.array([s.tau_prev for s in states], dtype=float),
+        "tau_star_s": np.array([s.tau for s in states], dtype=float),
     }
 
 
@@ -184,6 +175,7 @@ def generate(cfg: Config, n_labels: int, spec: DatasetSpec, workers: int = 1,
         cols["mission"].append(np.full(n, p["mission"], dtype=np.int64))
         cols["split"].append(np.full(n, p["split"], dtype=object))
         cols["t_s"].append(p["t_s"][:n])
+        cols["update_k"].append(p["update_k"][:n])
         for i in range(6):
             cols[XD_COLS[i]].append(p["x_d"][:n, i])
             cols[XC_COLS[i]].append(p["x_c"][:n, i])

@@ -13,20 +13,19 @@ import time
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ..config import Config, load_config
 from ..governor import Governor, make_governor
-from ..mission import nominal_start, run_mission, sample_start
+from ..mission import errors_against_optimal, nominal_start, rmse, run_mission, sample_start
 from ..tsg import Predictor
-from ..units import through_si
 from .governor import nn_accept_rate
 
 
 def closed_loop(governor: Governor, seeds: list[int | None]) -> dict[str, Any]:
     """Missions from the nominal start (seed None) or Monte Carlo seeds; aggregated metrics."""
     pred = governor.predictor
-    tc = pred.config.control.period_s
-    sq_err: list[float] = []
+    errors: list[NDArray] = []
     runs = []
     records = []
     start = time.perf_counter()
@@ -35,19 +34,14 @@ def closed_loop(governor: Governor, seeds: list[int | None]) -> dict[str, Any]:
         res = run_mission(governor, x0)
         runs.append(res.metrics())
         records += res.updates
-        for t_u, rec in zip(res.update_t, res.updates):
-            k = int(round(t_u / tc))
-            tau_prev = float(res.tau[k - 1])
-            if tau_prev < 0.0:
-                star, _ = pred.optimal_shift(through_si(res.x_d[k]), float(res.t[k]), tau_prev)
-                sq_err.append((rec.tau_s - star) ** 2)
-    active = [r.wall_s for r in records if r.path != "zero"]
+        errors.append(errors_against_optimal(pred, res.update_states()))
+    active = [r.wall_s for r in records if r.active]
     return {
         "governor": governor.name,
         "runs": len(runs),
         "success": sum(r["success"] for r in runs),
         "violations": sum(r["violations"] for r in runs),
-        "rmse_tau_s": float(np.sqrt(np.mean(sq_err))) if sq_err else 0.0,
+        "rmse_tau_s": rmse(np.concatenate(errors)),
         "delta_v_kmps_mean": float(np.mean([r["delta_v_kmps"] for r in runs])),
         "t_tau_zero_s_mean": float(np.nanmean([np.nan if r["t_tau_zero_s"] is None
                                                else r["t_tau_zero_s"] for r in runs])),
@@ -56,7 +50,7 @@ def closed_loop(governor: Governor, seeds: list[int | None]) -> dict[str, Any]:
         "active_update_ms_mean": float(np.mean(active) * 1e3) if active else 0.0,
         "active_updates": len(active),
         "verify_calls_mean_active": float(np.mean([r.verify_calls for r in records
-                                                   if r.path != "zero"])) if active else 0.0,
+                                                   if r.active])) if active else 0.0,
         "nn_accept_rate": None if governor.name == "conventional" else nn_accept_rate(records),
         "wall_s": time.perf_counter() - start,
     }

@@ -6,6 +6,9 @@ Feature sets (named in every model card):
 - ``"vnb"``: the relative state x_d - x_c rotated into the chief's VNB frame (SPEC §1: x̂ along
   v_c, ŷ = r_c × x̂ normalised, ẑ = x̂ × ŷ), then x_c in ECI. Same information (the rotation is a
   function of x_c), but the line-of-sight cone is fixed in this frame, so the map is simpler.
+- ``"vnb-prev"``: ``"vnb"`` and ln|τ_{k-1}| (s) as a 13th input. π* at update k is the search's
+  answer over [τ_{k-1}, 0] (SPEC §5, §8), so it depends on τ_{k-1}, which the state alone does not
+  show; this set lets a network see it.
 
 Raw ECI positions in float32 cannot resolve metre offsets, hence float64 until after z-scoring.
 """
@@ -17,36 +20,58 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..orbit import vnb_frame
 
-FEATURE_SETS = ("eci", "vnb")
+FEATURE_SETS = ("eci", "vnb", "vnb-prev")
+#: State features of every set; "vnb-prev" adds ln|τ_{k-1}|.
 N_FEATURES = 12
 
 
-def features(x_d: ArrayLike, x_c: ArrayLike, kind: str = "vnb") -> NDArray:
-    """Features of states x_d, x_c (..., 6) [km, km/s] -> (..., 12) float64."""
+def n_features(kind: str) -> int:
+    """Number of network inputs of a feature set."""
+    if kind not in FEATURE_SETS:
+        raise ValueError(f"unknown feature set {kind!r}; known: {FEATURE_SETS}")
+    return N_FEATURES + (kind == "vnb-prev")
+
+
+def uses_tau_prev(kind: str) -> bool:
+    """Does the feature set take τ_{k-1} as an input?"""
+    return kind == "vnb-prev"
+
+
+def features(x_d: ArrayLike, x_c: ArrayLike, kind: str = "vnb", tau_prev: ArrayLike | None = None
+             ) -> NDArray:
+    """Features of states x_d, x_c (..., 6) [km, km/s] (and τ_{k-1} (...) < 0 [s] for
+    ``"vnb-prev"``) -> (..., n_features(kind)) float64."""
     x_d = np.asarray(x_d, dtype=np.float64)
     x_c = np.asarray(x_c, dtype=np.float64)
     rel = x_d - x_c
     if kind == "eci":
         return np.concatenate([rel, x_c], axis=-1)
-    if kind == "vnb":
+    if kind in ("vnb", "vnb-prev"):
+        from ..orbit import vnb_frame  # numba-backed; imported on use so the CLI starts fast
+
         rot = vnb_frame(x_c)                                     # (..., 3, 3)
         p = np.einsum("...ij,...j->...i", rot, rel[..., :3])
         v = np.einsum("...ij,...j->...i", rot, rel[..., 3:])
-        return np.concatenate([p, v, x_c], axis=-1)
+        if kind == "vnb":
+            return np.concatenate([p, v, x_c], axis=-1)
+        if tau_prev is None:
+            raise ValueError("feature set 'vnb-prev' needs tau_prev")
+        lp = np.log(-np.asarray(tau_prev, dtype=np.float64))[..., None]
+        return np.concatenate([p, v, x_c, np.broadcast_to(lp, p.shape[:-1] + (1,))], axis=-1)
     raise ValueError(f"unknown feature set {kind!r}; known: {FEATURE_SETS}")
 
 
-def features_one(x_d: NDArray, x_c: NDArray, kind: str, out: NDArray) -> NDArray:
-    """Single-sample :func:`features` into ``out`` (12,), with scalar arithmetic (no temporaries
-    of numpy's small-array overhead); equal to :func:`features` to rounding."""
+def features_one(x_d: NDArray, x_c: NDArray, kind: str, out: NDArray, tau_prev: float = math.nan
+                 ) -> NDArray:
+    """Single-sample :func:`features` into ``out`` (n_features(kind),), with scalar arithmetic (no
+    temporaries of numpy's small-array overhead); equal to :func:`features` to rounding."""
     r0, r1, r2, w0, w1, w2 = (float(x_c[0]), float(x_c[1]), float(x_c[2]),
                               float(x_c[3]), float(x_c[4]), float(x_c[5]))
     d = [float(x_d[i]) - float(x_c[i]) for i in range(6)]
     if kind == "eci":
         out[:6] = d
-    elif kind == "vnb":
+    elif kind in ("vnb", "vnb-prev"):
         nv = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
         x0, x1, x2 = w0 / nv, w1 / nv, w2 / nv
         y0, y1, y2 = r1 * x2 - r2 * x1, r2 * x0 - r0 * x2, r0 * x1 - r1 * x0
@@ -60,7 +85,10 @@ def features_one(x_d: NDArray, x_c: NDArray, kind: str, out: NDArray) -> NDArray
             out[o + 2] = z0 * a + z1 * b + z2 * c
     else:
         raise ValueError(f"unknown feature set {kind!r}; known: {FEATURE_SETS}")
-    out[6:] = (r0, r1, r2, w0, w1, w2)
+    out[6:12] = (r0, r1, r2, w0, w1, w2)
+    if kind == "vnb-prev":
+        # ln of a non-negative |τ_{k-1}|: -inf at 0 and NaN for τ > 0 make the proposal unusable.
+        out[12] = math.log(-tau_prev) if tau_prev < 0.0 else (-math.inf if tau_prev == 0.0 else math.nan)
     return out
 
 

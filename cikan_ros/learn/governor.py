@@ -1,16 +1,33 @@
-"""The learned Time Shift Governor: Algorithm 1 of the paper, made precise in SPEC §8.
+"""Learned Time Shift Governors: a network π̃_θ proposes the shift, Verify checks it (SPEC §8).
 
-update(x_d, x_c, t_k, τ_prev):
-  τ_prev == 0                 -> 0, no prediction (recursive feasibility)           [path "zero"]
-  τ_c = quantise(-exp(NN(z(x_d, x_c))))   (whole nanoseconds, so the verified shift is returned)
-  τ_prev <= τ_c <= 0, Verify(τ_c)   -> τ_c                                          [path "nn"]
-  τ_prev <= τ_c <= 0, not Verify    -> bisect(lo = τ_prev, hi = τ_c)                 [path "nn+bisect"]
-  otherwise (or NN not finite)      -> bisect(lo = τ_prev, hi = 0)                   [path "bisect"]
-  then, if τ < 0 and |τ| <= tsg.zero_snap_s and Verify(0): τ = 0                     [path "verify-zero"]
+Two update rules, chosen by ``learned.algorithm``; both start from the conventional initial search
+and share the zero rule (τ_prev = 0 -> 0 with no prediction, path "zero") and the final zero test
+(τ < 0, |τ| <= tsg.zero_snap_s and Verify(0) -> 0, path "verify-zero"). τ_c is the network's
+proposal -exp(NN) on the nanosecond grid (NaN when the output is not finite or out of range).
 
-Whatever the network outputs, the answer passed Verify or is τ_prev (the bisection keeps a
-verified lower end, τ_prev being feasible by recursive feasibility): a wrong network costs time,
-never safety. The first shift comes from the conventional initial search.
+``keep`` (default; k = round(t_k / P_upd), δ = learned.min_step_s, S = learned.probe_every,
+B = learned.fallback_budget, B_p = learned.probe_budget; the update is *scheduled* when
+k % S == 0; bisect_b = bisection that stops after b Verify calls and returns its verified lower
+end, b = 0 meaning τ_prev)::
+
+  τ_prev + δ <= τ_c <= 0 (the network proposes progress):
+      Verify(τ_c)                 -> τ_c                                            [path "nn"]
+      else                        -> bisect_b(lo = τ_prev, hi = τ_c),
+                                     b = B_p if scheduled else B          [path "nn+bisect" or "keep"]
+  otherwise (no progress proposed, or τ_c unusable):
+      not scheduled               -> τ_prev, no prediction                          [path "keep"]
+      scheduled                   -> bisect_{B_p}(lo = τ_prev, hi = 0)              [path "probe"]
+
+``paper`` (the paper's Algorithm 1)::
+
+  τ_prev <= τ_c <= 0: Verify(τ_c) -> τ_c [path "nn"], else bisect(τ_prev, τ_c) [path "nn+bisect"]
+  otherwise                       -> bisect(τ_prev, 0)                              [path "bisect"]
+
+Safety (both rules): the answer passed Verify or equals τ_prev, which recursive feasibility keeps
+feasible (SPEC §5; the conventional bisection relies on the same unverified lower end). The keep
+rule's cost is bounded: one forward plus at most 1 + max(B, B_p) Verify calls, plus the zero
+test. Progress: whatever the network outputs, every S-th update either moves by a verified
+proposal or searches below it or over [τ_prev, 0] with B_p calls, so τ cannot stall.
 
 No torch here: the network runs through :class:`cikan_ros.learn.arch.NumpyNet`.
 """
@@ -18,16 +35,16 @@ No torch here: the network runs through :class:`cikan_ros.learn.arch.NumpyNet`.
 from __future__ import annotations
 
 import math
-import time
 from pathlib import Path
 from typing import Iterable
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..governor import (PATH_BISECT, PATH_INITIAL, PATH_NN, PATH_NN_BISECT, PATH_VERIFY_ZERO,
-                        PATH_ZERO, UpdateRecord, initial_update)
-from ..tsg import Predictor, quantise_shift
+from ..governor import (PATH_BISECT, PATH_INITIAL, PATH_KEEP, PATH_NN, PATH_NN_BISECT, PATH_PROBE,
+                        PATH_VERIFY_ZERO, PATH_ZERO, UpdateRecord, initial_update, make_record,
+                        start_clock, update_index)
+from ..tsg import ChiefCache, Predictor, quantise_shift
 from .arch import NumpyNet
 from .features import features_one
 from .modelfile import LoadedModel, load_model
@@ -43,7 +60,7 @@ class LearnedGovernor:
         self.net = net
         self.predictor = predictor
         self.name = name
-        self._feat = np.empty(12)
+        self._feat = np.empty(net.arch.n_in)
         self._kind = net.arch.features
 
     @classmethod
@@ -51,15 +68,16 @@ class LearnedGovernor:
                    ) -> "LearnedGovernor":
         return cls(NumpyNet(model.arch, model.tensors), predictor, name or model.arch.family)
 
-    def log_shift(self, x_d: ArrayLike, x_c: ArrayLike) -> float:
-        """NN(features): predicted ln|τ| (s) at states x_d, x_c (km, km/s)."""
+    def log_shift(self, x_d: ArrayLike, x_c: ArrayLike, tau_prev: float = math.nan) -> float:
+        """NN(features): predicted ln|τ| (s) at states x_d, x_c (km, km/s) with previous shift
+        τ_{k-1} (s; an input of "vnb-prev" networks only)."""
         f = features_one(np.asarray(x_d, dtype=float), np.asarray(x_c, dtype=float), self._kind,
-                         self._feat)
+                         self._feat, tau_prev)
         return self.net.forward_one(self.net.normalise(f))
 
-    def proposal(self, x_d: ArrayLike, x_c: ArrayLike) -> float:
+    def proposal(self, x_d: ArrayLike, x_c: ArrayLike, tau_prev: float = math.nan) -> float:
         """τ_c = -exp(NN) on the nanosecond grid; NaN if the network's output is not usable."""
-        y = self.log_shift(x_d, x_c)
+        y = self.log_shift(x_d, x_c, tau_prev)
         if not (math.isfinite(y) and y <= MAX_LOG_SHIFT):
             return math.nan
         return quantise_shift(-math.exp(y))
@@ -68,30 +86,55 @@ class LearnedGovernor:
         return initial_update(self.predictor, x_d, t)
 
     def update(self, x_d: ArrayLike, x_c: ArrayLike, t: float, tau_prev: float) -> UpdateRecord:
-        start = time.perf_counter()
+        started = start_clock()
         pred = self.predictor
+        k = update_index(t, pred.config.tsg.update_period_s)
         if tau_prev == 0.0:
-            return UpdateRecord(0.0, PATH_ZERO, 0, time.perf_counter() - start)
-        tau_c = self.proposal(x_d, x_c)
-        cache = pred.cache(t)  # chief states along the horizon, shared by this update's predictions
-        calls = 0
-        if tau_prev <= tau_c <= 0.0:
-            calls += 1
-            if pred.verify(x_d, t, tau_c, cache):
-                tau, path = tau_c, PATH_NN
-            else:
-                tau, c = pred.bisect(x_d, t, tau_prev, tau_c, cache)
-                calls += c
-                path = PATH_NN_BISECT
+            return make_record(started, 0.0, PATH_ZERO, 0, k, tau_prev)
+        tau_c = self.proposal(x_d, x_c, tau_prev)
+        if pred.config.learned.algorithm == "paper":
+            tau, path, calls, cache = self._paper(x_d, t, tau_prev, tau_c)
         else:
-            tau, c = pred.bisect(x_d, t, tau_prev, 0.0, cache)
-            calls += c
-            path = PATH_BISECT
+            tau, path, calls, cache = self._keep(x_d, t, tau_prev, tau_c, k)
         if tau < 0.0 and -tau <= pred.config.tsg.zero_snap_s:
             calls += 1
-            if pred.verify(x_d, t, 0.0, cache):
+            if pred.verify(x_d, t, 0.0, cache or pred.cache(t)):
                 tau, path = 0.0, PATH_VERIFY_ZERO
-        return UpdateRecord(tau, path, calls, time.perf_counter() - start)
+        return make_record(started, tau, path, calls, k, tau_prev)
+
+    def _paper(self, x_d: ArrayLike, t: float, tau_prev: float, tau_c: float
+               ) -> tuple[float, str, int, ChiefCache]:
+        """The paper's Algorithm 1 (without the zero test): (τ, path, Verify calls, chief cache)."""
+        pred = self.predictor
+        cache = pred.cache(t)  # chief states along the horizon, shared by this update's predictions
+        if tau_prev <= tau_c <= 0.0:
+            if pred.verify(x_d, t, tau_c, cache):
+                return tau_c, PATH_NN, 1, cache
+            tau, c = pred.bisect(x_d, t, tau_prev, tau_c, cache)
+            return tau, PATH_NN_BISECT, c + 1, cache
+        tau, c = pred.bisect(x_d, t, tau_prev, 0.0, cache)
+        return tau, PATH_BISECT, c, cache
+
+    def _keep(self, x_d: ArrayLike, t: float, tau_prev: float, tau_c: float, k: int
+              ) -> tuple[float, str, int, ChiefCache | None]:
+        """The keep rule (without the zero test): (τ, path, Verify calls, chief cache or None)."""
+        pred = self.predictor
+        lc = pred.config.learned
+        scheduled = k % lc.probe_every == 0
+        if tau_prev + lc.min_step_s <= tau_c <= 0.0:
+            cache = pred.cache(t)
+            if pred.verify(x_d, t, tau_c, cache):
+                return tau_c, PATH_NN, 1, cache
+            budget = lc.probe_budget if scheduled else lc.fallback_budget
+            if budget == 0:
+                return tau_prev, PATH_KEEP, 1, cache
+            tau, c = pred.bisect(x_d, t, tau_prev, tau_c, cache, budget)
+            return tau, PATH_NN_BISECT, c + 1, cache
+        if not scheduled or lc.probe_budget == 0:
+            return tau_prev, PATH_KEEP, 0, None
+        cache = pred.cache(t)
+        tau, c = pred.bisect(x_d, t, tau_prev, 0.0, cache, lc.probe_budget)
+        return tau, PATH_PROBE, c, cache
 
 
 def nn_accept_rate(updates: Iterable[UpdateRecord]) -> float | None:

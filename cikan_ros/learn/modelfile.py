@@ -20,7 +20,7 @@ from typing import Any, Mapping
 import numpy as np
 from numpy.typing import NDArray
 
-from .arch import FAMILIES, NORM_TENSORS, Arch
+from .arch import FAMILIES, NORM_TENSORS, Arch, norm_tensor_shapes
 from .errors import ModelFileError
 
 FORMAT = "cikan-model/1"
@@ -108,8 +108,8 @@ def save_model(directory: str | Path, arch: Arch, tensors: Mapping[str, Any],
 def resolve(name_or_path: str | Path) -> Path:
     """A family name (``models/<family>/``), a model directory, or a file inside one."""
     s = str(name_or_path)
-    if s in FAMILIES and not Path(s).exists():
-        d = MODELS_DIR / s
+    if (s in FAMILIES or (MODELS_DIR / s / CARD).exists()) and not Path(s).exists():
+        d = MODELS_DIR / s  # a shipped model: models/<family>/ or another directory there
     else:
         p = Path(s)
         d = p.parent if p.is_file() or p.name in (WEIGHTS, CARD) else p
@@ -119,7 +119,7 @@ def resolve(name_or_path: str | Path) -> Path:
 
 
 def _check_tensors(arch: Arch, arrays: Mapping[str, NDArray], where: Path) -> None:
-    expected = {**arch.tensor_shapes(), **NORM_TENSORS}
+    expected = {**arch.tensor_shapes(), **norm_tensor_shapes(arch.n_in)}
     missing = sorted(set(expected) - set(arrays))
     extra = sorted(set(arrays) - set(expected))
     if missing or extra:

@@ -15,7 +15,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from .arch import LAYERNORM_EPS, NORM_TENSORS, Arch
+from .arch import LAYERNORM_EPS, Arch, norm_tensor_shapes
 
 
 class UniformBSplineBasis(nn.Module):
@@ -145,16 +145,16 @@ class MLPLayer(nn.Linear):
 
 
 class TimeShiftNet(nn.Module):
-    """π̃_θ: z-scored features z (B, 12) -> ln|τ| (B,) = target_mean + target_std · net(z).
+    """π̃_θ: z-scored features z (B, I) -> ln|τ| (B,) = target_mean + target_std · net(z).
 
-    Buffers (saved with the weights, float64): feature_mean, feature_std (12,), target_mean,
+    Buffers (saved with the weights, float64): feature_mean, feature_std (I,) with I = arch.n_in, target_mean,
     target_std (1,). Features are z-scored outside, in float64 (:func:`normalise`).
     """
 
     def __init__(self, arch: Arch) -> None:
         super().__init__()
         self.arch = arch
-        for name, shape in NORM_TENSORS.items():
+        for name, shape in norm_tensor_shapes(arch.n_in).items():
             self.register_buffer(name, torch.zeros(shape, dtype=torch.float64)
                                  if "mean" in name else torch.ones(shape, dtype=torch.float64))
         w = arch.widths
@@ -185,11 +185,11 @@ class TimeShiftNet(nn.Module):
         self.target_std.fill_(float(target_std))
 
     def normalise(self, feats: np.ndarray) -> np.ndarray:
-        """Raw float64 features (..., 12) -> z-scored (float64)."""
+        """Raw float64 features (..., I) -> z-scored (float64)."""
         return (feats - self.feature_mean.numpy()) / self.feature_std.numpy()
 
     def forward(self, z: Tensor) -> Tensor:
-        """(B, 12) float32 z-scored features -> (B,) predicted ln|τ| (s)."""
+        """(B, I) float32 z-scored features -> (B,) predicted ln|τ| (s)."""
         x = z
         for layer in self.layers:
             x = layer(x)

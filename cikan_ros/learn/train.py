@@ -31,7 +31,7 @@ from .schedule import ExpHyperbolicLR
 
 @dataclass
 class SplitData:
-    """Raw float64 features (n, 12), targets y = ln|τ*| (n,), τ* (n,) and mission ids of a split."""
+    """Raw float64 features (n, I), targets y = ln|τ*| (n,), τ* (n,) and mission ids of a split."""
 
     feats: NDArray
     y: NDArray
@@ -55,7 +55,8 @@ def load_data(path: str | Path, kind: str = "vnb") -> Data:
     out = {}
     for s in SPLITS:
         part = df[df["split"] == s]
-        feats = features(part[list(XD_COLS)].to_numpy(), part[list(XC_COLS)].to_numpy(), kind)
+        feats = features(part[list(XD_COLS)].to_numpy(), part[list(XC_COLS)].to_numpy(), kind,
+                         part["tau_prev_s"].to_numpy(dtype=np.float64))
         tau = part["tau_star_s"].to_numpy(dtype=np.float64)
         out[s] = SplitData(feats, np.log(-tau), tau, part["mission"].to_numpy())
     if len(out["train"].y) == 0 or len(out["val"].y) == 0:
@@ -97,7 +98,7 @@ def _tensor(a: NDArray) -> torch.Tensor:
 
 @torch.inference_mode()
 def predict(net: TimeShiftNet, z: torch.Tensor, batch: int = 8192) -> NDArray:
-    """ln|τ| predictions (float64) for z-scored features z (n, 12)."""
+    """ln|τ| predictions (float64) for z-scored features z (n, I)."""
     net.eval()
     out = [net(z[i:i + batch]).double() for i in range(0, len(z), batch)]
     return torch.cat(out).numpy() if out else np.empty(0)

@@ -21,8 +21,9 @@ from .train import Data, TrainConfig, train
 DEFAULT_STORAGE = "sqlite:///runs/tune.sqlite3"
 
 
-def study_name_for(family: str) -> str:
-    return f"cikan-tsg-{family}"
+def study_name_for(family: str, features: str = "vnb") -> str:
+    """Default Optuna study of a family and feature set (state-only "vnb" keeps the old name)."""
+    return f"cikan-tsg-{family}" + ("" if features == "vnb" else f"-{features}")
 
 
 def suggest(trial: Any, family: str, features: str = "vnb") -> tuple[Arch, dict[str, Any]]:
@@ -63,7 +64,7 @@ def run_tune(family: str, data: Data, trials: int, storage: str = DEFAULT_STORAG
     import optuna
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
-    name = study_name or study_name_for(family)
+    name = study_name or study_name_for(family, data_features(data))
     study = optuna.create_study(
         study_name=name, storage=open_storage(storage), direction="minimize", load_if_exists=True,
         sampler=optuna.samplers.TPESampler(seed=seed, n_startup_trials=4, multivariate=True),

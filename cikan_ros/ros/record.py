@@ -17,6 +17,7 @@ records (the shift it held when a shift came late), and governor_node's decision
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -53,9 +54,11 @@ def _state(msg: Any) -> np.ndarray:
     return m_to_km(np.array([p.x, p.y, p.z, v.x, v.y, v.z]))
 
 
-def _decision(tau_s: float, path: str, verify_calls: int = 0, wall_s: float = math.nan) -> UpdateRecord:
-    """One decision record (Verify calls and wall time unknown unless governor_node recorded them)."""
-    return UpdateRecord(tau_s, path, verify_calls, wall_s)
+def _decision(tau_s: float, path: str, verify_calls: int = 0, wall_s: float = math.nan,
+              cpu_s: float = math.nan) -> UpdateRecord:
+    """One decision record (Verify calls, wall and CPU time unknown unless governor_node recorded
+    them); its update index and tau_prev are set from the step it was applied at."""
+    return UpdateRecord(tau_s, path, verify_calls, wall_s, cpu_s=cpu_s)
 
 
 def _first_valid(msgs: list[tuple[int, Any]], tl: Timeline, decode: Any) -> dict[int, Any]:
@@ -100,7 +103,8 @@ def mission_from_bag(path: str | Path, cfg: Config, governor: str) -> tuple[Miss
                 held[tl.step(time_to_ns(arr.header.stamp))] = float(v["tau_s"])
             elif st.name == "governor_node" and v.get("event") == "update":
                 recorded.setdefault(int(v["k"]), _decision(float(v["tau_s"]), v["path"],
-                                                           int(v["verify_calls"]), float(v["wall_s"])))
+                                                           int(v["verify_calls"]), float(v["wall_s"]),
+                                                           float(v.get("cpu_s", "nan"))))
     schedule = Schedule(cfg)
     tau = np.full(n, math.nan)
     u = np.zeros((n, 3))
@@ -115,9 +119,9 @@ def mission_from_bag(path: str | Path, cfg: Config, governor: str) -> tuple[Miss
             current = shifts[k][0]
             rec = recorded.get(k) or _decision(current, shifts[k][1])
             if initial is None:
-                initial = rec
+                initial = replace(rec, k=k // schedule.every)
             elif schedule.update_due(k):
-                updates.append((k, rec))
+                updates.append((k, replace(rec, k=k // schedule.every, tau_prev=float(tau[k - 1]))))
         tau[k] = current
     if initial is None:
         raise CikanError(f"bag {path}: no time shift recorded on {TIME_SHIFT}")
