@@ -382,6 +382,24 @@ def test_bad_model_is_refused_at_run_time_and_the_mission_goes_on(ros_env: int, 
     assert len(shifts(msgs)) == 240                               # the governor answered every step
 
 
+def test_a_governor_failing_mid_mission_is_one_line_and_the_bag_stays_readable(ros_env: int,
+                                                                               tmp_path: Path) -> None:
+    """A governor that exits with an error (code 3) after 10 steps: the mission fails with one
+    line naming it and its last error; what was recorded is kept, closed and readable."""
+    from mcap.reader import make_reader
+
+    script = Path(__file__).resolve().parent / "failing_governor.py"
+    with pytest.raises(CikanError, match=r"governor \(exec:.*\) exited with code 3: .*giving up as planned"
+                                         r".*bag kept in") as failure:
+        run_ros_mission(load_config(**{"mission.duration_s": 1200.0}), bag=tmp_path / "bag",
+                        governor_exec=f"{sys.executable} {script} 10")
+    assert "\n" not in str(failure.value)
+    with open(next((tmp_path / "bag").glob("*.mcap")), "rb") as f:
+        assert make_reader(f).get_summary() is not None         # closed by the recorder
+    msgs = rosbags_messages(tmp_path / "bag")
+    assert [stamp_ns(m) for _, m in msgs["/tsg/time_shift"]] == [stamp_ns(m) for _, m in msgs["/deputy/odom"]][:10]
+
+
 def test_bad_model_at_launch_is_one_line_and_a_rerun_may_reuse_the_bag(ros_env: int, tmp_path: Path) -> None:
     cfg = load_config(**{"mission.duration_s": 100.0})
     with pytest.raises(CikanError, match="governor_node exited with code [12]: .*nope") as failure:
