@@ -13,6 +13,7 @@ applies zero thrust). Non-finite, off-grid, positive or stale inputs are rejecte
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -113,13 +114,18 @@ class ControllerNode(Node):
             self.command(stamp, entry["x"], *entry["tau"])
         elif self.waiting != stamp:
             self.waiting = stamp
-            (self.lost_deadline if self.lost else self.deadline).reset()
+            self.waiting_since = time.perf_counter()
+            self.wait_timer = self.lost_deadline if self.lost else self.deadline
+            self.wait_timer.reset()
 
     def on_deadline(self) -> None:
+        waited = time.perf_counter() - self.waiting_since
+        if self.waiting is None or waited < self.wait_timer.timer_period_ns / 1e9:
+            return  # not waiting, or a stale expiry (a loaded executor may deliver one late)
         self.deadline.cancel()
         self.lost_deadline.cancel()
         stamp, self.waiting = self.waiting, None
-        if stamp is None or stamp <= self.last_stamp:
+        if stamp <= self.last_stamp:
             return
         self.lost = True
         if self.tau is None:
