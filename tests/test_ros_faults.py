@@ -197,9 +197,12 @@ def launch_cikan(bag: Path) -> tuple[subprocess.Popen, list[int]]:
     """`cikan mission` (:data:`LONG_STEPS` steps) as a process, once its bag holds messages:
     (process, the pids of its four node processes)."""
     cikan = Path(sys.executable).parent / "cikan"
+    # As from a terminal: SIGINT at its default (rclpy in this test process may have left it
+    # ignored, and an ignored SIGINT is inherited: Python would then not raise KeyboardInterrupt).
     proc = subprocess.Popen([str(cikan), "mission", "--bag", str(bag), "--json",
                              "--set", f"mission.duration_s={10 * LONG_STEPS}"], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, env=dict(os.environ))
+                            stderr=subprocess.PIPE, env=dict(os.environ),
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
 
     def progress() -> bool:
         try:
@@ -211,6 +214,7 @@ def launch_cikan(bag: Path) -> tuple[subprocess.Popen, list[int]]:
         wait_until(progress, 120.0, "recorded messages")
     except BaseException:
         proc.kill()
+        proc.communicate()
         raise
     children = [int(p.name) for p in Path("/proc").iterdir() if p.name.isdigit() and _ppid(p) == proc.pid]
     return proc, children
@@ -235,6 +239,7 @@ def test_sigint_to_cikan_mission_ends_children_and_closes_bag(ros_env: int, tmp_
     finally:
         if proc.poll() is None:
             proc.kill()
+            proc.communicate()
     assert proc.returncode == 130, err
     assert b"interrupted" in err
     for pid in children:
