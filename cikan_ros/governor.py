@@ -122,9 +122,20 @@ class ConventionalGovernor:
 #: Names of the learned model families shipped in ``models/`` (see ``cikan_ros.learn``).
 LEARNED_NAMES = ("cikan", "grbf", "rswaf", "relu", "gelu")
 GOVERNOR_NAMES = ("conventional",) + LEARNED_NAMES
-#: Every governor of the results campaign: the conventional TSG, the five families under the
-#: default keep rule and under the paper's Algorithm 1.
-CAMPAIGN_NAMES = GOVERNOR_NAMES + tuple(f"{n}@paper" for n in LEARNED_NAMES)
+
+
+def campaign_names() -> list[str]:
+    """Every governor of the results campaign (``cikan montecarlo --governor all``): the
+    conventional TSG; each family's default model under the keep rule; and, where a state-only
+    model ``models/<family>-state`` ships, that model under the keep rule and under the paper's
+    Algorithm 1 (the paper's inputs and rule), else the default model under Algorithm 1."""
+    from .learn.modelfile import MODELS_DIR
+
+    names = list(GOVERNOR_NAMES)
+    for n in LEARNED_NAMES:
+        state = f"{n}-state"
+        names += [state, f"{state}@paper"] if (MODELS_DIR / state).is_dir() else [f"{n}@paper"]
+    return names
 
 
 def split_rule(name: str) -> tuple[str, str | None]:
