@@ -1,9 +1,9 @@
 """A separate subscriber process for the replay tests: one node, reliable KEEP_ALL (or KEEP_LAST
-depth N) subscriptions to every topic of the graph; prints "ready", then, once it has the expected
-number of /tsg/time_shift messages (or after the timeout), one JSON line: counts per topic and the
-stamps (ns) of /tsg/time_shift in arrival order.
+depth N) subscriptions to the graph's topics (all, or the comma-separated TOPICS); prints "ready",
+then, once it has the expected number of /tsg/time_shift messages (or after the timeout), one JSON
+line: counts per topic and the stamps (ns) of /tsg/time_shift in arrival order.
 
-usage: python replay_sink.py EXPECTED_SHIFTS TIMEOUT_S [DEPTH]   (DEPTH 0 = KEEP_ALL)
+usage: python replay_sink.py EXPECTED_SHIFTS TIMEOUT_S [DEPTH [TOPICS]]   (DEPTH 0 = KEEP_ALL)
 """
 
 from __future__ import annotations
@@ -22,11 +22,12 @@ def main() -> int:
 
     expected, timeout = int(sys.argv[1]), float(sys.argv[2])
     depth = int(sys.argv[3]) if len(sys.argv) > 3 else 0
+    topics = sys.argv[4].split(",") if len(sys.argv) > 4 else list(TOPIC_TYPES)
     qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE) if depth == 0 \
         else QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.RELIABLE)
     rclpy.init()
     node = rclpy.create_node("replay_sink")
-    counts = {t: 0 for t in TOPIC_TYPES}
+    counts = {t: 0 for t in topics}
     stamps: list[int] = []
     done = Future()
 
@@ -37,8 +38,8 @@ def main() -> int:
             if len(stamps) >= expected:
                 done.set_result(True)
 
-    for topic, type_name in TOPIC_TYPES.items():
-        node.create_subscription(message_class(type_name), topic, lambda m, t=topic: on(t, m), qos)
+    for topic in topics:
+        node.create_subscription(message_class(TOPIC_TYPES[topic]), topic, lambda m, t=topic: on(t, m), qos)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     print("ready", flush=True)

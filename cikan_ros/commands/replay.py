@@ -24,20 +24,26 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--rate", type=float, default=1.0, help="playback rate x recorded time (default 1)")
     p.add_argument("--fast", action="store_true",
                    help="as fast as DDS takes the messages (ignores --rate); see 'Delivery' below")
-    p.add_argument("--wait-subscribers", type=int, default=0, metavar="N",
-                   help="before playing, wait until every topic has N subscribers (saying for what)")
+    p.add_argument("--wait-subscribers", action="append", default=[], metavar="N|TOPIC=N",
+                   help="before playing, wait until every topic (or TOPIC) has N subscribers, "
+                        "saying for what (repeatable); without it: --discovery")
     p.add_argument("--wait-timeout", type=float, default=10.0, metavar="S",
                    help="play anyway after S seconds of --wait-subscribers (default 10)")
+    p.add_argument("--discovery", type=float, default=None, metavar="S",
+                   help="without --wait-subscribers: seconds to let DDS discover the subscribers "
+                        "that already run before playing (default 2.5; 0: play at once)")
     p.add_argument("--quiet", action="store_true", help="no progress bar and no notes on stderr")
     p.add_argument("--json", action="store_true", help="print the counts as one JSON object")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..ros.replay import replay
+    from ..ros.replay import DISCOVERY_S, replay
 
     counts = replay(args.bag, rate=args.rate, fast=args.fast, wait_subscribers=args.wait_subscribers,
-                    wait_timeout_s=args.wait_timeout, progress=not args.quiet and sys.stderr.isatty(),
+                    wait_timeout_s=args.wait_timeout,
+                    discovery_s=DISCOVERY_S if args.discovery is None else args.discovery,
+                    progress=not args.quiet and sys.stderr.isatty(),
                     say=(lambda _text: None) if args.quiet else None)
     if args.json:
         print(dumps(counts))

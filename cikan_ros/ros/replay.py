@@ -36,6 +36,10 @@ from .graph import CLOCK, message_class
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 #: Seconds the last messages get to be acknowledged by every reliable reader before we leave.
 FINAL_ACK_TIMEOUT_S = 60.0
+#: Seconds to let DDS match subscribers that already run, before playing (unless waiting for
+#: named ones): a publisher created beside a running subscriber was matched after 0.01-2.2 s
+#: (localhost, 2 busy cores); messages published before that are not delivered to it.
+DISCOVERY_S = 2.5
 
 
 def qos_replay() -> Any:
@@ -63,25 +67,43 @@ def mcap_file(bag: str | os.PathLike) -> Path:
     return path
 
 
-def wait_for_subscribers(pubs: dict[str, Any], count: int, timeout_s: float,
+def parse_wait(specs: list[str] | int | None, topics: list[str]) -> dict[str, int]:
+    """``--wait-subscribers`` values as ``{topic: readers}``: ``N`` (every topic of the bag) or
+    ``TOPIC=N`` (that topic); CikanError for anything else or a topic the bag does not have."""
+    if isinstance(specs, int):
+        specs = [str(specs)] if specs > 0 else []
+    out: dict[str, int] = {}
+    for spec in specs or []:
+        topic, sep, count = spec.rpartition("=")
+        try:
+            n = int(count)
+        except ValueError:
+            n = -1
+        if n < 1 or (sep and topic not in topics):
+            raise CikanError(f"--wait-subscribers {spec!r}: expected N or TOPIC=N with N >= 1 and "
+                             f"TOPIC one of the bag's topics ({', '.join(topics)})")
+        out.update({topic: n} if sep else {t: n for t in topics})
+    return out
+
+
+def wait_for_subscribers(pubs: dict[str, Any], wanted: dict[str, int], timeout_s: float,
                          say: Callable[[str], None]) -> None:
-    """Wait until every topic has ``count`` subscribers, saying what it waits for and, after
-    ``timeout_s``, which topics still lack them (then play anyway)."""
+    """Wait until each topic of ``wanted`` has its number of subscribers matched, saying what it
+    waits for and, after ``timeout_s``, which topics still lack them (then play anyway)."""
     def missing() -> list[str]:
-        return [f"{t} ({p.get_subscription_count()}/{count})" for t, p in pubs.items()
-                if p.get_subscription_count() < count]
+        return [f"{t} ({pubs[t].get_subscription_count()}/{n})" for t, n in wanted.items()
+                if pubs[t].get_subscription_count() < n]
 
     if not missing():
         return
-    say(f"waiting up to {timeout_s:g} s for {count} subscriber(s) on each of: {', '.join(pubs)}")
+    say(f"waiting up to {timeout_s:g} s for subscribers: "
+        + ", ".join(f"{n} on {t}" for t, n in wanted.items()))
     end = time.monotonic() + timeout_s
     while missing() and time.monotonic() < end:
         time.sleep(0.02)
     still = missing()
     if still:
         say(f"playing without all subscribers after {timeout_s:g} s; missing on: {', '.join(still)}")
-
-
 def best_effort_readers(node: Any, topics: list[str]) -> list[str]:
     """Best-effort readers of ``topics``. (DDS discovery tells a reader's reliability, not its
     history: remote readers show history UNKNOWN, depth 0, so KEEP_LAST ones cannot be named.)"""
@@ -92,10 +114,14 @@ def best_effort_readers(node: Any, topics: list[str]) -> list[str]:
             if info.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT]
 
 
-def replay(bag: str | os.PathLike, rate: float = 1.0, fast: bool = False, wait_subscribers: int = 0,
-           wait_timeout_s: float = 10.0, delay_s: float = 0.2, progress: bool = False,
+def replay(bag: str | os.PathLike, rate: float = 1.0, fast: bool = False,
+           wait_subscribers: list[str] | int | None = None, wait_timeout_s: float = 10.0,
+           discovery_s: float = DISCOVERY_S, progress: bool = False,
            say: Callable[[str], None] | None = None) -> dict[str, int]:
     """Republish ``bag``; return the number of messages published per topic.
+
+    Before playing, it waits for the subscribers of ``wait_subscribers`` (see :func:`parse_wait`),
+    or else ``discovery_s`` for DDS to match the subscribers already running.
 
     ``progress`` shows a progress bar on stderr; ``say`` receives the one-line notes (waits,
     what readers may miss); default: print them to stderr.
@@ -126,6 +152,8 @@ def replay(bag: str | os.PathLike, rate: float = 1.0, fast: bool = False, wait_s
         channels, schemas = summary.channels, summary.schemas
         total = summary.statistics.message_count if summary.statistics else None
         has_clock = any(ch.topic == CLOCK for ch in channels.values())
+        wanted = parse_wait(wait_subscribers, [ch.topic for ch in channels.values()]
+                            + ([] if has_clock else [CLOCK]))
         rclpy.init()
         node = rclpy.create_node("cikan_replay")
         bar = None
@@ -138,9 +166,13 @@ def replay(bag: str | os.PathLike, rate: float = 1.0, fast: bool = False, wait_s
             by_topic = {channels[cid].topic: p for cid, p in pubs.items()}
             if clock_pub is not None:
                 by_topic[CLOCK] = clock_pub
-            if wait_subscribers > 0:
-                wait_for_subscribers(by_topic, wait_subscribers, wait_timeout_s, say)
-            time.sleep(delay_s)
+            if wanted:
+                wait_for_subscribers(by_topic, wanted, wait_timeout_s, say)
+                time.sleep(0.2)   # the other topics of a subscriber matched last
+            elif discovery_s > 0:
+                say(f"waiting {discovery_s:g} s for DDS to discover running subscribers (or use "
+                    "--wait-subscribers)")
+                time.sleep(discovery_s)
             if fast:
                 say("--fast: reliable KEEP_ALL readers get every message; a KEEP_LAST(N) reader that "
                     "falls more than N messages behind loses the oldest (see cikan replay --help)")
