@@ -294,7 +294,7 @@ def test_bad_model_is_refused_at_run_time_and_the_mission_goes_on(ros_env: int, 
 
 
 def test_bad_model_at_launch_is_a_clear_error(ros_env: int, tmp_path: Path) -> None:
-    with pytest.raises(CikanError, match="governor_node exited with code 1"):
+    with pytest.raises(CikanError, match="governor_node exited with code 2"):
         run_ros_mission(load_config(**{"mission.duration_s": 100.0}), governor=str(tmp_path / "nope"),
                         bag=tmp_path / "bag")
     meta = yaml.safe_load((tmp_path / "bag" / "metadata.yaml").read_text())
