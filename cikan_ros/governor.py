@@ -126,16 +126,13 @@ GOVERNOR_NAMES = ("conventional",) + LEARNED_NAMES
 
 def campaign_names() -> list[str]:
     """Every governor of the results campaign (``cikan montecarlo --governor all``): the
-    conventional TSG; each family's default model under the keep rule; and, where a state-only
-    model ``models/<family>-state`` ships, that model under the keep rule and under the paper's
-    Algorithm 1 (the paper's inputs and rule), else the default model under Algorithm 1."""
+    conventional TSG; each family's default model under the keep rule and under the paper's
+    Algorithm 1; and, where ``models/<family>-prev`` ships (τ_{k-1} as an input), that model
+    under the keep rule."""
     from .learn.modelfile import MODELS_DIR
 
-    names = list(GOVERNOR_NAMES)
-    for n in LEARNED_NAMES:
-        state = f"{n}-state"
-        names += [state, f"{state}@paper"] if (MODELS_DIR / state).is_dir() else [f"{n}@paper"]
-    return names
+    names = list(GOVERNOR_NAMES) + [f"{n}@paper" for n in LEARNED_NAMES]
+    return names + [f"{n}-prev" for n in LEARNED_NAMES if (MODELS_DIR / f"{n}-prev").is_dir()]
 
 
 def split_rule(name: str) -> tuple[str, str | None]:

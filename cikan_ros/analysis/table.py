@@ -47,8 +47,8 @@ COLUMNS = ("model", "rule", "architecture", "trainable_params", "paper_complexit
 
 
 def family_of(model: str) -> str:
-    """Family of a shipped model directory name: ``cikan-state`` -> ``cikan``."""
-    return model.removesuffix("-state")
+    """Family of a shipped model directory name: ``cikan-prev`` -> ``cikan``."""
+    return model.removesuffix("-prev")
 
 
 def _runs(gov_dir: Path) -> list[tuple[dict[str, Any], dict[str, Any], Path]]:
