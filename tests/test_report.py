@@ -67,7 +67,8 @@ def test_report_from_a_montecarlo_directory(campaign, tmp_path):
 
 
 BAG = REPO / "bags" / "nominal_conventional"
-TIMING = {"initial_ms", "update_ms_mean", "update_ms_max", "active_update_ms_mean", "active_update_ms_max"}
+TIMING = {"initial_ms", "update_ms_mean", "update_ms_max", "active_update_ms_mean", "active_update_ms_max",
+          "update_cpu_ms_mean", "update_cpu_ms_max", "active_update_cpu_ms_mean", "active_update_cpu_ms_max"}
 
 
 def test_report_from_the_committed_bag(tmp_path):
