@@ -30,7 +30,7 @@ montecarlo: $(STAMP)
 results: $(STAMP)
 	$(BIN)/cikan montecarlo --runs 100 --governor all --workers 2 --out runs/paper
 	$(BIN)/cikan report runs/paper --out docs/results --notes docs/results_notes.md \
-		--title "Results: the paper's Table 2 and Figures 3-4 reproduced"
+		--title "Results: the paper's Table 2 and Figures 3-4 reproduced, with the keep rule beside Algorithm 1"
 
 # The learned models at paper scale (`make -j2 models`, about 1.5 h on 2 cores): 1 M labels,
 # a TPE study of 30 pruned trials per family on the tau_prev-aware inputs (vnb-prev), then per
