@@ -1,5 +1,9 @@
-"""Offline closed loop (plant + FTRE controller every T_c + governor every P_upd), Monte Carlo
-starts and per-run metrics (SPEC §6, §9). No ROS here: the ROS graph runs the same steps.
+"""The closed-loop step (update schedule, virtual target + saturated FTRE command, docking test),
+the offline closed loop built from it, Monte Carlo starts and per-run metrics (SPEC §6, §9).
+
+No ROS here: the ROS nodes call the same :class:`ClosedLoop` (sim_node: schedule and docking
+test, governor_node: the decision of step k, controller_node: the command), so the graph and
+:func:`run_mission` run one implementation of the step.
 """
 
 from __future__ import annotations
@@ -9,7 +13,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import brentq
 
 from .config import Config
@@ -73,6 +77,69 @@ def sample_start(predictor: Predictor, seed: int, sigma_km: float | None = None)
     raise NoFeasibleShiftError(f"no admissible Monte Carlo start in {MAX_DRAWS} draws for seed {seed}")
 
 
+def docked(x_d: ArrayLike, x_c: ArrayLike, cfg: Config) -> NDArray:
+    """The docking test (|p_rel| < dock distance and |v_rel| < dock speed) per row of (..., 6)."""
+    rel = np.asarray(x_d, dtype=float) - np.asarray(x_c, dtype=float)
+    return (np.linalg.norm(rel[..., :3], axis=-1) < cfg.mission.dock_distance_km) \
+        & (np.linalg.norm(rel[..., 3:], axis=-1) < cfg.mission.dock_speed_kmps)
+
+
+class Schedule:
+    """The lockstep schedule of a mission (SPEC §6): K = T_sim / T_c control steps at t_k = k T_c
+    (whole nanoseconds); the governor decides at the first state it sees (the first-instant
+    search) and then at every k > 0 with k T_c a multiple of P_upd, holding its shift in between;
+    the mission ends at k = K (or when docked, if asked)."""
+
+    def __init__(self, cfg: Config) -> None:
+        self.config = cfg
+        self.period_ns = seconds_to_ns(cfg.control.period_s)
+        self.n_steps = round(cfg.mission.duration_s / cfg.control.period_s)
+        #: Control steps per governor update (P_upd / T_c).
+        self.every = round(cfg.tsg.update_period_s / cfg.control.period_s)
+
+    def time(self, k: int) -> float:
+        """t_k (s since the epoch): the float both the offline loop and the nodes use."""
+        return ns_to_seconds(k * self.period_ns)
+
+    def times(self) -> NDArray:
+        """t_0 .. t_K (s)."""
+        return np.array([self.time(k) for k in range(self.n_steps + 1)])
+
+    def update_due(self, k: int) -> bool:
+        """Is a governor update due at step k (after the first instant)?"""
+        return k > 0 and k % self.every == 0
+
+    def finished(self, k: int, x_d: NDArray, x_c: NDArray, stop_on_dock: bool = False) -> bool:
+        """Does the mission end at step k (T_sim reached, or docked when ``stop_on_dock``)?"""
+        return k >= self.n_steps or (stop_on_dock and bool(docked(x_d, x_c, self.config)))
+
+
+class ClosedLoop(Schedule):
+    """One step k of the closed loop, the single implementation used by :func:`run_mission` and
+    by the ROS nodes: the :class:`Schedule`, the governor's decision, and the saturated FTRE
+    command toward the virtual target x_v = x_c(t_k + tau)."""
+
+    def __init__(self, predictor: Predictor) -> None:
+        super().__init__(predictor.config)
+        self.predictor = predictor
+
+    def decide(self, governor: Governor, k: int, x_d: NDArray, x_c: NDArray,
+               tau_prev: float | None) -> UpdateRecord | None:
+        """The governor's part of step k: the first-instant search while no shift is in force
+        (``tau_prev`` None), an update when one is due, else None (the shift in force holds)."""
+        t = self.time(k)
+        if tau_prev is None:
+            return governor.initial(x_d, x_c, t)
+        if self.update_due(k):
+            return governor.update(x_d, x_c, t, tau_prev)
+        return None
+
+    def command(self, k: int, tau: float, x_d: NDArray) -> NDArray:
+        """Saturated FTRE acceleration (km/s^2, ECI) at t_k toward x_v = x_c(t_k + tau)."""
+        x_v, nu_v = self.predictor.orbit.state_and_anomaly(self.time(k) + tau)
+        return ftre_control(self.predictor.gains, float(nu_v), x_d, x_v, self.config.control.u_max_kmps2)
+
+
 @dataclass
 class MissionResult:
     """A whole closed-loop run. Arrays are per control step k = 0 .. K (K = T_sim / T_c)."""
@@ -102,19 +169,21 @@ class MissionResult:
         violations = int(np.count_nonzero(h1_bad | h2_bad | h3_bad))
         zero_idx = np.flatnonzero(self.tau == 0.0)
         tau_zero = bool(self.tau[-1] == 0.0)
-        docked = bool(dist[-1] < cfg.mission.dock_distance_km and speed[-1] < cfg.mission.dock_speed_kmps)
+        at_dock = docked(self.x_d, self.x_c, cfg)
         walls = np.array([r.wall_s for r in self.updates]) * 1e3
         active = np.array([r.wall_s for r in self.updates if r.active]) * 1e3
         cpu = np.array([r.cpu_s for r in self.updates]) * 1e3
         cpu_active = np.array([r.cpu_s for r in self.updates if r.active]) * 1e3
+        # Wall and CPU times and Verify calls are unknown (NaN / None) in a run rebuilt from the
+        # typed topics alone (a governor without governor_node's decision records).
+        timed = all(math.isfinite(r.wall_s) for r in [self.initial, *self.updates])
         dv = cfg.control.period_s * float(np.sum(np.linalg.norm(self.u, axis=1)))
         h1n = m.h1_normalised[np.isfinite(m.h1_normalised)]
         h3 = m.h3[np.isfinite(m.h3)]
-        docked_idx = np.flatnonzero((dist < cfg.mission.dock_distance_km)
-                                    & (speed < cfg.mission.dock_speed_kmps))
+        docked_idx = np.flatnonzero(at_dock)
         return {
             "governor": self.governor,
-            "success": bool(tau_zero and docked and violations == 0),
+            "success": bool(tau_zero and at_dock[-1] and violations == 0),
             "violations": violations,
             "violations_h1": int(np.count_nonzero(h1_bad)),
             "violations_h3": int(np.count_nonzero(h3_bad)),
@@ -140,11 +209,12 @@ class MissionResult:
             "update_cpu_ms_max": float(cpu.max()) if cpu.size else 0.0,
             "active_update_cpu_ms_mean": float(cpu_active.mean()) if cpu_active.size else 0.0,
             "active_update_cpu_ms_max": float(cpu_active.max()) if cpu_active.size else 0.0,
-            "verify_calls": int(self.initial.verify_calls + sum(r.verify_calls for r in self.updates)),
-            "active_verify_calls_max": max((r.verify_calls for r in self.updates if r.active), default=0),
+            "verify_calls": int(self.initial.verify_calls + sum(r.verify_calls for r in self.updates))
+            if timed else None,
+            "active_verify_calls_max": max((r.verify_calls for r in self.updates if r.active), default=0)
+            if timed else None,
             "duration_s": float(self.t[-1] - self.t[0]),
         }
-
 
     def update_states(self, active_only: bool = True) -> list["UpdateState"]:
         """What the governor was given at each update (after the first instant) and its answer."""
@@ -196,45 +266,82 @@ def rmse(errors: NDArray) -> float:
     return float(np.sqrt(np.mean(np.square(errors)))) if len(errors) else math.nan
 
 
-def run_mission(governor: Governor, x_d0: NDArray, plant: Plant | None = None) -> MissionResult:
-    """Closed loop from deputy state x_d0 at t = 0 for T_sim: governor every P_upd, control every T_c.
+@dataclass(frozen=True)
+class ShiftAudit:
+    """A run's time shifts checked against the governor contract, independently of the governor.
 
-    At step k: chief state, governor update (every P_upd after the first instant), control
-    toward x_v = x_c(t_k + tau), plant step with the control held (ZOH).
+    ``unverified``: steps where a shift took effect (a decision was due, or the shift changed)
+    that is not known feasible: Verify from the recorded state rejects it, and it is not the
+    previous verified shift held (feasible by recursive feasibility). ``off_schedule``: steps
+    where the shift changed although no decision was due. ``decisions``: steps where one was due.
+    """
+
+    unverified: int
+    off_schedule: int
+    decisions: int
+
+
+def audit_shifts(predictor: Predictor, x_d: NDArray, tau: NDArray) -> ShiftAudit:
+    """Audit the shift in force ``tau`` (K+1,) (NaN: none yet) against the deputy states ``x_d``
+    (K+1, 6) as the governor saw them (a bag's states are; offline ones go through SI first)."""
+    loop = ClosedLoop(predictor)
+    unverified = off_schedule = decisions = 0
+    prev: float | None = None
+    prev_ok = False
+    for k in range(min(len(tau) - 1, loop.n_steps)):   # the final state gets no shift
+        if not math.isfinite(tau[k]):
+            continue
+        due = prev is None or loop.update_due(k)
+        changed = prev is None or float(tau[k]) != prev
+        decisions += due
+        if not (due or changed):
+            continue
+        off_schedule += changed and not due
+        ok = (not changed and prev_ok) or (tau[k] <= 0.0 and predictor.verify(x_d[k], loop.time(k),
+                                                                            float(tau[k])))
+        unverified += not ok
+        prev, prev_ok = float(tau[k]), ok
+    return ShiftAudit(int(unverified), int(off_schedule), int(decisions))
+
+
+def run_mission(governor: Governor, x_d0: NDArray, plant: Plant | None = None) -> MissionResult:
+    """Closed loop from deputy state x_d0 at t = 0 for T_sim: the :class:`ClosedLoop` step with
+    the plant stepped under the held command (ZOH). The governor and the controller see what
+    crosses the ROS boundary (SI and back), as the nodes do.
     """
     pred = governor.predictor
     cfg = pred.config
+    loop = ClosedLoop(pred)
     x = np.array(x_d0, dtype=float)
     check_states(x, "initial deputy state")
     plant = plant or Plant(pred.orbit.mu, cfg.mission.plant_substeps)
     tc = cfg.control.period_s
-    n_steps = round(cfg.mission.duration_s / tc)
-    every = round(cfg.tsg.update_period_s / tc)
-    t = np.array([ns_to_seconds(k * seconds_to_ns(tc)) for k in range(n_steps + 1)])
+    n_steps = loop.n_steps
+    t = loop.times()
     x_c = pred.orbit.state(t)
     x_d = np.empty((n_steps + 1, 6))
     u = np.zeros((n_steps + 1, 3))
     taus = np.empty(n_steps + 1)
     updates: list[UpdateRecord] = []
     update_t: list[float] = []
-    first = governor.initial(through_si(x), through_si(x_c[0]), 0.0)
-    tau = first.tau_s
-    u_max = cfg.control.u_max_kmps2
+    first: UpdateRecord | None = None
+    tau: float | None = None
     for k in range(n_steps):
-        # The governor and the controller see what crosses the ROS boundary (SI and back).
         x_seen = through_si(x)
-        if k > 0 and k % every == 0:
-            rec = governor.update(x_seen, through_si(x_c[k]), float(t[k]), tau)
-            updates.append(rec)
-            update_t.append(float(t[k]))
+        rec = loop.decide(governor, k, x_seen, through_si(x_c[k]), tau)
+        if rec is not None:
+            if first is None:
+                first = rec
+            else:
+                updates.append(rec)
+                update_t.append(float(t[k]))
             tau = rec.tau_s
         x_d[k] = x
         taus[k] = tau
-        (x_v, nu_v) = pred.orbit.state_and_anomaly(t[k] + tau)
-        u[k] = through_si(ftre_control(pred.gains, float(nu_v), x_seen, x_v, u_max))
+        u[k] = through_si(loop.command(k, tau, x_seen))
         x = plant.step(x, u[k], tc)
     x_d[-1] = x
     taus[-1] = tau
-    m = margins(x_d, x_c, u, cfg.constraints, u_max)
+    m = margins(x_d, x_c, u, cfg.constraints, cfg.control.u_max_kmps2)
     m.h2[-1] = math.nan  # no command is applied at the final instant
     return MissionResult(cfg, governor.name, t, x_d, x_c, u, taus, m, first, np.array(update_t), updates)

@@ -13,6 +13,7 @@ applies zero thrust). Non-finite, off-grid, positive or stale inputs are rejecte
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -22,7 +23,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from sensor_msgs.msg import TimeReference
 
-from cikan_ros.control import ftre_control
+from cikan_ros.mission import ClosedLoop
 from cikan_ros.ros import convert as cv
 from cikan_ros.ros.graph import (PATH_HOLD, ACCEL_CMD, DEPUTY_ODOM, DIAGNOSTICS, QOS_STREAM,
                                  TIME_SHIFT, Readiness, cached_predictor, declare_config, qos_for,
@@ -45,10 +46,10 @@ class ControllerNode(Node):
         lost = float(p["controller.lost_deadline_s"])
         peers, timeout = [str(n) for n in p["graph.peers"]], float(p["graph.startup_timeout_s"])
         pred = cached_predictor(cfg)
-        self.orbit, self.gains = pred.orbit, pred.gains
-        self.u_max = cfg.control.u_max_kmps2
+        self.loop = ClosedLoop(pred)
+        self.loop.command(0, 0.0, pred.orbit.state(0.0))  # load the compiled kernels now
         self.timeline = cv.Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
-        self.n_steps = round(cfg.mission.duration_s / cfg.control.period_s)
+        self.n_steps = self.loop.n_steps
         self.tau: float | None = None     # last verified shift (s)
         self.last_stamp = -1              # last step answered
         self.waiting: int | None = None   # step whose shift is awaited
@@ -113,13 +114,18 @@ class ControllerNode(Node):
             self.command(stamp, entry["x"], *entry["tau"])
         elif self.waiting != stamp:
             self.waiting = stamp
-            (self.lost_deadline if self.lost else self.deadline).reset()
+            self.waiting_since = time.perf_counter()
+            self.wait_timer = self.lost_deadline if self.lost else self.deadline
+            self.wait_timer.reset()
 
     def on_deadline(self) -> None:
+        waited = time.perf_counter() - self.waiting_since
+        if self.waiting is None or waited < self.wait_timer.timer_period_ns / 1e9:
+            return  # not waiting, or a stale expiry (a loaded executor may deliver one late)
         self.deadline.cancel()
         self.lost_deadline.cancel()
         stamp, self.waiting = self.waiting, None
-        if stamp is None or stamp <= self.last_stamp:
+        if stamp <= self.last_stamp:
             return
         self.lost = True
         if self.tau is None:
@@ -134,9 +140,7 @@ class ControllerNode(Node):
         self.deadline.cancel()
         self.lost_deadline.cancel()
         self.waiting = None
-        t = self.timeline.seconds(stamp)
-        x_v, nu_v = self.orbit.state_and_anomaly(t + tau)
-        u = ftre_control(self.gains, float(nu_v), x_d, x_v, self.u_max)
+        u = self.loop.command(self.timeline.step(stamp), tau, x_d)
         self.pub_accel.publish(cv.accel_msg(u, stamp))
         self.tau = tau
         self.last_stamp = stamp

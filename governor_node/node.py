@@ -23,8 +23,8 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from sensor_msgs.msg import TimeReference
 
-from cikan_ros.governor import make_governor
-from cikan_ros.mission import nominal_start
+from cikan_ros.governor import make_governor, warm_up
+from cikan_ros.mission import ClosedLoop, nominal_start
 from cikan_ros.ros import convert as cv
 from cikan_ros.ros.graph import (PATH_HOLD, CHIEF_ODOM, DEPUTY_ODOM, DIAGNOSTICS, GOVERNOR_INFO,
                                  QOS_LATCHED, QOS_STREAM, TIME_SHIFT, Readiness, cached_predictor,
@@ -47,12 +47,10 @@ class GovernorNode(Node):
         peers, timeout = [str(n) for n in p["graph.peers"]], float(p["graph.startup_timeout_s"])
         self.predictor = cached_predictor(cfg)
         self.governor = make_governor(name, cfg, self.predictor)
-        # Warm up (compiled kernels, model) before joining the graph: the first answer is then fast.
-        x0 = nominal_start(self.predictor)
-        self.governor.initial(x0, self.predictor.orbit.state(0.0), 0.0)
+        self.loop = ClosedLoop(self.predictor)
+        self.warm_up(self.governor)
         self.timeline = cv.Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
-        self.n_steps = round(cfg.mission.duration_s / cfg.control.period_s)
-        self.every = round(cfg.tsg.update_period_s / cfg.control.period_s)
+        self.n_steps = self.loop.n_steps
         self.tau: float | None = None
         self.last_k = -1
         self.pending: dict[int, dict[str, Any]] = {}
@@ -75,6 +73,7 @@ class GovernorNode(Node):
             if p.name == "governor.name":
                 try:
                     new = make_governor(str(p.value), self.cfg, self.predictor)
+                    self.warm_up(new)
                 except Exception as exc:  # a bad model must not reach the running mission
                     self.diag("warn", f"governor {p.value!r} refused: {exc}", {"event": "refused"})
                     return SetParametersResult(successful=False, reason=str(exc))
@@ -102,6 +101,12 @@ class GovernorNode(Node):
         self.pub_announce.publish(cv.governor_info(NAME, values))
         self.get_logger().info(f"flying governor {self.governor.name}"
                                + (f" (model {values['model']})" if "model" in values else ""))
+
+    def warm_up(self, governor: Any) -> None:
+        """Load and run every kernel (and a learned governor's network) once, on the nominal start,
+        before the governor decides in the mission: the node joins the graph (and the sim starts)
+        only after this, so no decision of the mission pays for compilation or loading."""
+        warm_up(governor, nominal_start(self.predictor), self.predictor.orbit.state(0.0))
 
     def diag(self, level: str, text: str, values: dict[str, Any], stamp: int | None = None) -> None:
         stamp = self.timeline.stamp_ns(max(self.last_k, 0)) if stamp is None else stamp
@@ -131,14 +136,10 @@ class GovernorNode(Node):
             self.decide(k, stamp, entry["deputy"], entry["chief"])
 
     def decide(self, k: int, stamp: int, x_d: Any, x_c: Any) -> None:
-        t = self.timeline.seconds(stamp)
         self.last_k = k
         try:
-            if self.tau is None:
-                rec = self.governor.initial(x_d, x_c, t)
-            elif k % self.every == 0:
-                rec = self.governor.update(x_d, x_c, t, self.tau)
-            else:
+            rec = self.loop.decide(self.governor, k, x_d, x_c, self.tau)
+            if rec is None:
                 self.pub_tau.publish(cv.time_shift_msg(stamp, self.tau, PATH_HOLD))
                 return
             msg = cv.time_shift_msg(stamp, rec.tau_s, rec.path)
@@ -152,7 +153,8 @@ class GovernorNode(Node):
         self.tau = rec.tau_s
         self.pub_tau.publish(msg)
         self.diag("ok", "update", {"event": "update", "k": k, "tau_s": rec.tau_s, "path": rec.path,
-                                   "verify_calls": rec.verify_calls, "wall_s": rec.wall_s}, stamp)
+                                   "verify_calls": rec.verify_calls, "wall_s": rec.wall_s,
+                                   "cpu_s": rec.cpu_s}, stamp)
 
 
 def main(args: list[str] | None = None) -> int:

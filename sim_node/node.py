@@ -26,7 +26,7 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 
 from cikan_ros.constraints import margins
 from cikan_ros.dynamics import Plant
-from cikan_ros.mission import nominal_start, sample_start
+from cikan_ros.mission import ClosedLoop, nominal_start, sample_start
 from cikan_ros.ros import convert as cv
 from cikan_ros.ros.graph import (ACCEL_CMD, CHIEF_ODOM, CLOCK, DEPUTY_ODOM, DIAGNOSTICS, QOS_STREAM,
                                  Readiness, cached_predictor, declare_config, qos_for, required_readers,
@@ -56,8 +56,8 @@ class SimNode(Node):
         self.plant = Plant(pred.orbit.mu, cfg.mission.plant_substeps)
         self.x = nominal_start(pred) if seed < 0 else sample_start(pred, seed)
         self.timeline = cv.Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
-        self.n_steps = round(cfg.mission.duration_s / cfg.control.period_s)
-        self.every = round(cfg.tsg.update_period_s / cfg.control.period_s)
+        self.loop = ClosedLoop(pred)
+        self.n_steps = self.loop.n_steps
         self.u_max = cfg.control.u_max_kmps2
         self.k = 0
         self.x_c = np.zeros(6)
@@ -98,15 +98,13 @@ class SimNode(Node):
         self.pub_clock.publish(cv.clock_msg(stamp))
         self.pub_chief.publish(cv.odom_msg(self.x_c, stamp, "chief"))
         self.pub_deputy.publish(cv.odom_msg(self.x, stamp, "deputy"))
-        rel = self.x - self.x_c
-        docked = (np.linalg.norm(rel[:3]) < self.cfg.mission.dock_distance_km
-                  and np.linalg.norm(rel[3:]) < self.cfg.mission.dock_speed_kmps)
-        if self.k >= self.n_steps or (self.stop_on_dock and docked):
+        if self.loop.finished(self.k, self.x, self.x_c, self.stop_on_dock):
             self.finish()
             return
         self.waiting = True
         self.t_published = time.perf_counter()
-        (self.lost_deadline if self.lost else self.deadline).reset()
+        self.wait_timer = self.lost_deadline if self.lost else self.deadline
+        self.wait_timer.reset()
 
     def on_accel(self, msg: AccelStamped) -> None:
         stamp = cv.time_to_ns(msg.header.stamp)
@@ -123,10 +121,11 @@ class SimNode(Node):
         self.apply(u, "command")
 
     def on_deadline(self) -> None:
+        waited = time.perf_counter() - self.t_published
+        if not self.waiting or waited < self.wait_timer.timer_period_ns / 1e9:
+            return  # not waiting, or a stale expiry (a loaded executor may deliver one late)
         self.deadline.cancel()
         self.lost_deadline.cancel()
-        if not self.waiting:
-            return
         self.misses += 1
         self.lost = True
         self.get_logger().warning(f"no command for t_k = {self.stamp()} ns: zero thrust")
@@ -145,7 +144,8 @@ class SimNode(Node):
         self.waiting = False
         ms = (time.perf_counter() - self.t_published) * 1e3
         if source == "command":
-            (self.latency_ms if self.k % self.every else self.latency_update_ms).append(ms)
+            decision = self.k == 0 or self.loop.update_due(self.k)
+            (self.latency_update_ms if decision else self.latency_ms).append(ms)
         m = margins(self.x, self.x_c, u, self.cfg.constraints, self.u_max)
         level = "ok" if source == "command" else "warn"
         text = "step" if source == "command" else "controller missed its deadline: zero thrust"
@@ -158,12 +158,17 @@ class SimNode(Node):
         pause = self.wall0 + self.k * self.cfg.control.period_s / self.max_rtf - time.perf_counter() \
             if self.max_rtf > 0 else 0.0
         if pause > 0:
-            self.pace = self.create_timer(pause, self.paced, clock=self.steady)
+            self.pace = self.create_timer(pause, lambda k=self.k: self.paced(k), clock=self.steady)
         else:
             self.publish_state()
 
-    def paced(self) -> None:
+    def paced(self, k: int) -> None:
+        """One-shot pacing timer of step k. A loaded executor may deliver two expiries of it
+        before the first is handled (seen: step k published twice): only the first counts."""
+        if self.pace is None or k != self.k:
+            return
         self.destroy_timer(self.pace)
+        self.pace = None
         self.publish_state()
 
     def finish(self) -> None:

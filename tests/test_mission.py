@@ -74,3 +74,48 @@ def test_sampler_is_deterministic_and_admissible(cfg, predictor):
     x_c = predictor.orbit.state(0.0)
     assert margins(a, x_c, np.zeros(3), cfg.constraints, 5e-4).h1[0] <= 0
     np.testing.assert_array_equal(a[3:], nominal_start(predictor)[3:])  # velocity as nominal
+
+
+def test_schedule_of_the_default_mission(cfg):
+    """SPEC §6: T_c = 10 s, P_upd = 60 s, T_sim = 4 h: K = 1440 steps at t_k = 10 k s exactly, a
+    decision at k = 0 and every 6th step after it, 240 in all (k = K needs none)."""
+    from cikan_ros.mission import Schedule
+
+    s = Schedule(cfg)
+    assert s.n_steps == 1440 and s.every == 6
+    np.testing.assert_array_equal(s.times(), 10.0 * np.arange(1441))
+    due = [k for k in range(s.n_steps) if k == 0 or s.update_due(k)]
+    assert due[:3] == [0, 6, 12] and due[-1] == 1434 and len(due) == 240
+    assert not s.finished(1439, np.zeros(6), np.ones(6)) and s.finished(1440, np.zeros(6), np.ones(6))
+
+
+def test_docking_test_is_strict_and_per_row(cfg):
+    """Docked iff |p_rel| < 1 m and |v_rel| < 1 mm/s (SPEC §6); on the boundary it is not."""
+    from cikan_ros.mission import Schedule, docked
+
+    x_c = np.array([7000.0, 0.0, 0.0, 0.0, 7.5, 0.0])
+    rows = np.array([x_c + [0.0009, 0, 0, 0, 0, 9e-7], x_c + [0.001, 0, 0, 0, 0, 0],
+                     x_c + [0, 0, 0, 0, 1e-6, 0], x_c])
+    np.testing.assert_array_equal(docked(rows, x_c, cfg), [True, False, False, True])
+    assert Schedule(cfg).finished(3, rows[0], x_c, stop_on_dock=True)
+    assert not Schedule(cfg).finished(3, rows[1], x_c, stop_on_dock=True)
+
+
+def test_shift_audit_of_a_governed_and_of_tampered_histories(predictor, nominal):
+    """The conventional run keeps the contract; tau = 0 from the start and a shift changed
+    between updates are found. References: Verify called directly, the schedule of SPEC §6."""
+    from cikan_ros.mission import audit_shifts
+    from cikan_ros.units import through_si
+
+    x_seen = through_si(nominal.x_d)      # the states the governor saw
+    audit = audit_shifts(predictor, x_seen, nominal.tau)
+    assert (audit.unverified, audit.off_schedule, audit.decisions) == (0, 0, 240)
+    zero = audit_shifts(predictor, x_seen, np.zeros_like(nominal.tau))
+    assert not predictor.verify(x_seen[0], 0.0, 0.0)   # tau = 0 is not admissible at the start
+    assert zero.off_schedule == 0 and 1 <= zero.unverified <= 240
+    tampered = nominal.tau.copy()
+    tampered[3] = nominal.tau[3] / 2                      # changed at k = 3, back at k = 4
+    assert audit_shifts(predictor, x_seen, tampered).off_schedule == 2
+    late = nominal.tau.copy()
+    late[:2] = np.nan                                     # no shift before k = 2: the first comes then
+    assert audit_shifts(predictor, x_seen, late).decisions == 240

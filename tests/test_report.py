@@ -107,3 +107,38 @@ def test_bag_carries_its_configuration_and_governor():
 
     assert bag_config(BAG, None) == load_config()
     assert bag_governor(BAG) == "conventional"
+
+
+def test_metrics_from_the_typed_topics_alone(tmp_path, cfg):
+    """A copy of the reference bag without /diagnostics (what any governor keeping the topic
+    contract leaves): the same run and metrics, decision timings unknown (None), audit clean."""
+    import yaml
+    from mcap.reader import make_reader
+
+    from cikan_ros.ros.bag import BagWriter
+    from cikan_ros.ros.record import recorded_metrics
+
+    typed = tmp_path / "typed"
+    writer = BagWriter(typed)
+    meta = yaml.safe_load((BAG / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    qos = {t["topic_metadata"]["name"]: t["topic_metadata"]["offered_qos_profiles"]
+           for t in meta["topics_with_message_count"]}
+    with open(next(BAG.glob("*.mcap")), "rb") as f:
+        for schema, channel, message in make_reader(f).iter_messages():
+            if channel.topic != "/diagnostics":
+                writer.add_topic(channel.topic, schema.name, qos[channel.topic])
+                writer.write(channel.topic, message.data, message.log_time)
+    writer.close()
+    full_run, full = recorded_metrics(BAG, cfg, "conventional")
+    run, metrics = recorded_metrics(typed, cfg, "conventional")
+    np.testing.assert_array_equal(run.tau, full_run.tau)
+    np.testing.assert_array_equal(run.u, full_run.u)         # the applied commands
+    np.testing.assert_array_equal(run.x_d, full_run.x_d)
+    assert [r.path for r in run.updates] == [r.path for r in full_run.updates]
+    for key, value in full.items():
+        if key in TIMING or key in ("verify_calls", "active_verify_calls_max"):
+            assert metrics[key] is None, key
+        elif key != "ros":
+            assert metrics[key] == value, key
+    assert "ros" not in metrics and "ros" in full               # the simulator's summary is an extra
+    assert (metrics["unverified_shifts"], metrics["off_schedule_shifts"], metrics["missing_shifts"]) == (0, 0, 0)

@@ -24,7 +24,8 @@ METRIC_ROWS = (("success", "{}"), ("violations", "{}"), ("tau0_s", "{:.4f}"), ("
                ("t_docked_s", "{}"), ("final_distance_m", "{:.3e}"), ("final_speed_mps", "{:.3e}"),
                ("delta_v_kmps", "{:.4f}"), ("min_h1_margin", "{:.3e}"), ("max_h3", "{:.3e}"),
                ("updates", "{}"), ("update_ms_mean", "{:.3f}"), ("update_ms_max", "{:.3f}"),
-               ("active_update_ms_mean", "{:.3f}"), ("active_update_ms_max", "{:.3f}"))
+               ("active_update_ms_mean", "{:.3f}"), ("active_update_ms_max", "{:.3f}"),
+               ("unverified_shifts", "{}"), ("off_schedule_shifts", "{}"), ("missing_shifts", "{}"))
 
 
 def is_bag(path: Path) -> bool:
@@ -52,14 +53,14 @@ def bag_governor(path: Path) -> str:
 
 def run_from_bag(path: Path, cfg: Config | None = None) -> tuple[RunData, dict[str, Any]]:
     """A bag's run history and its metrics (computed by MissionResult.metrics)."""
-    from ..ros.record import mission_from_bag
+    from ..ros.record import recorded_metrics
 
     config = bag_config(path, cfg)
     gov = bag_governor(path)
-    res, _ = mission_from_bag(path, config, gov)
+    res, metrics = recorded_metrics(path, config, gov)
     m = res.margins
     return (RunData(gov, res.t, res.x_d, res.x_c, res.u, res.tau, m.h1_normalised, m.h2, m.h3,
-                    label=path.name), res.metrics())
+                    label=path.name), metrics)
 
 
 def run_from_npz(json_path: Path) -> tuple[RunData, dict[str, Any]]:

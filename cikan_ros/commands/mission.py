@@ -23,13 +23,24 @@ SUMMARY_KEYS = (
     ("update_ms_mean", "update time mean / max [ms]", None),
     ("active_update_ms_mean", "active-phase update mean / max [ms]", None),
 )
+#: Governor contract audit of a ROS run (cikan_ros.mission.audit_shifts), shown when present.
+AUDIT_KEYS = (
+    ("unverified_shifts", "time shifts not verified (audit)", "{}"),
+    ("off_schedule_shifts", "time shifts changed off schedule", "{}"),
+    ("missing_shifts", "steps without a time shift", "{}"),
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("mission", help="run one rendezvous (offline or as the ROS graph)",
                        description="Run one rendezvous mission and print its metrics.")
-    p.add_argument("--governor", default="conventional", metavar="NAME|PATH",
-                   help="conventional, cikan, grbf, rswaf, relu, gelu, or a model file/directory")
+    p.add_argument("--governor", default=None, metavar="NAME|PATH",
+                   help="conventional (default), cikan, grbf, rswaf, relu, gelu, or a model file/directory")
+    p.add_argument("--governor-exec", metavar='"CMD ARGS"', default=None,
+                   help="ROS run: start this executable in place of governor_node (the governor "
+                        "contract in the README); it gets ARGS followed by --ros-args --params-file "
+                        "FILE, the file every node gets; the bag and the metrics name the governor "
+                        "exec:CMD ARGS, and the summary adds an audit of its time shifts")
     p.add_argument("--offline", action="store_true",
                    help="run the closed loop in-process without ROS (default: the ROS node graph)")
     p.add_argument("--seed", type=int, default=None,
@@ -49,10 +60,11 @@ def print_summary(metrics: dict[str, Any], title: str) -> None:
     from rich.table import Table
 
     table = Table(show_header=False)
-    for key, label, fmt in SUMMARY_KEYS:
+    for key, label, fmt in SUMMARY_KEYS + tuple(a for a in AUDIT_KEYS if a[0] in metrics):
         if fmt is None:
             stem = key.removesuffix("_mean")
-            value = f"{metrics[key]:.3f} / {metrics[stem + '_max']:.3f}"
+            value = " / ".join("-" if metrics.get(k) is None else f"{metrics[k]:.3f}"
+                               for k in (key, stem + "_max"))
         else:
             v = metrics.get(key)
             value = "-" if v is None else fmt.format(v)
@@ -65,6 +77,12 @@ def print_summary(metrics: dict[str, Any], title: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..errors import ConfigError
+
+    if args.governor_exec is not None and (args.offline or args.governor is not None):
+        raise ConfigError("--governor-exec replaces governor_node in the ROS graph: it takes "
+                          "neither --offline nor --governor")
+    args.governor = args.governor or "conventional"
     cfg = config_from_args(args)
     if args.offline:
         from ..governor import make_governor
@@ -83,7 +101,8 @@ def run(args: argparse.Namespace) -> int:
         from ..ros.launch import run_ros_mission
 
         metrics = run_ros_mission(cfg, governor=args.governor, seed=args.seed, bag=args.bag,
-                                  config_path=args.config, overrides=args.overrides)
+                                  config_path=args.config, overrides=args.overrides,
+                                  governor_exec=args.governor_exec)
         metrics.update(seed=args.seed, mode="ros")
     if args.json:
         print(dumps(metrics))

@@ -4,7 +4,11 @@
   first published state to the final one; process start-up excluded, reported separately).
 - ros_step_ms_p50 / p99: wall time from sim_node publishing the states of a step to it receiving
   that step's command, over the steps where the governor holds tau (governor compute excluded);
-  ros_update_step_ms_max: the same at update steps (governor compute included).
+  ros_update_step_ms_max: the same at the first step and the update steps (governor compute
+  included; the governor loads and runs its kernels before the lockstep starts, so the first
+  decision is as fast as the others).
+- ros_decision_ms_max: the longest governor decision of the mission (first-instant search or
+  update), as governor_node timed it.
 - The same mission once more with the other executor (``ros_single_*``): the comparison behind
   the choice of executor (cikan_ros.ros.graph.make_executor).
 """
@@ -37,7 +41,8 @@ def lockstep_figures(cfg: Config, executor: str) -> dict[str, Any]:
         shutil.rmtree(tmp, ignore_errors=True)
     ros = m["ros"]
     return {"rtf": ros["rtf"], "step_ms_p50": ros["step_ms_p50"], "step_ms_p99": ros["step_ms_p99"],
-            "update_step_ms_max": ros["update_step_ms_max"], "lockstep_wall_s": ros["wall_s"],
+            "update_step_ms_max": ros["update_step_ms_max"],
+            "decision_ms_max": max(m["initial_ms"], m["update_ms_max"]), "lockstep_wall_s": ros["wall_s"],
             "mission_wall_s": ros["launch_wall_s"], "mission_success": m["success"]}
 
 

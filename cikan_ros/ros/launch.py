@@ -3,16 +3,21 @@
 Starts recorder_node, governor_node, controller_node and sim_node as separate processes (fresh
 interpreters, own process groups) on an isolated domain: a ROS_DOMAIN_ID of its own,
 ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and a private ROS_LOG_DIR. Every node gets the same
-params file (the mission's configuration plus node parameters). The simulator ends the lockstep;
-the launcher then stops the governor and the controller, then the recorder (which drains and
-closes the bag), rebuilds the mission from the bag and returns the offline metrics plus the bag
-path. Ctrl-C (or SIGTERM) stops every child in the same order and leaves a closed bag.
+params file (the mission's configuration plus node parameters); ``governor_exec`` runs any
+executable in place of governor_node with the same arguments (the README's governor contract).
+The simulator ends the lockstep; the launcher then stops the governor and the controller, then
+the recorder (which drains and closes the bag), rebuilds the mission from the bag and returns
+the offline metrics plus the bag path. Ctrl-C (or SIGTERM) stops every child in the same order
+and leaves a closed bag; if the launcher itself is killed, its children get SIGTERM from the
+kernel (PR_SET_PDEATHSIG) and end the same way.
 """
 
 from __future__ import annotations
 
 import os
+import ctypes
 import random
+import shlex
 import shutil
 import signal
 import subprocess
@@ -23,7 +28,7 @@ import time
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Callable, Iterable
 
 import yaml
 
@@ -74,6 +79,43 @@ def pick_domain_id() -> int:
     return random.SystemRandom().randint(1, 101)
 
 
+#: prctl(2) option: the signal a child gets when the thread that started it dies.
+PR_SET_PDEATHSIG = 1
+
+
+def die_with_parent() -> Callable[[], None]:
+    """A ``preexec_fn`` that makes the child receive SIGTERM when this process dies (even by
+    SIGKILL), so no node outlives its launcher. prctl is resolved here, in the parent: the child
+    only makes the system call between fork and exec."""
+    prctl = ctypes.CDLL(None, use_errno=True).prctl
+    parent = os.getpid()
+
+    def child() -> None:
+        prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
+        if os.getppid() != parent:   # the launcher died before prctl took effect
+            os._exit(1)
+    return child
+
+
+def exec_command(command: str) -> list[str]:
+    """``--governor-exec`` text as an argv; CikanError if it is empty or not an executable."""
+    try:
+        argv = shlex.split(command)
+    except ValueError as exc:
+        raise CikanError(f"--governor-exec {command!r}: {exc}") from None
+    if not argv:
+        raise CikanError("--governor-exec: empty command")
+    if shutil.which(argv[0]) is None:
+        raise CikanError(f"--governor-exec: {argv[0]!r} is not an executable file (or not on PATH)")
+    return argv
+
+
+def exec_environment(env: dict[str, str]) -> dict[str, str]:
+    """Environment of an external governor: the graph's, without the ROS-wheels bootstrap guard
+    (its interpreter, maybe of another venv, sets up its own ROS libraries)."""
+    return {k: v for k, v in env.items() if k != "_ROS_WHEELS_BOOTSTRAP_COMPLETE"}
+
+
 @dataclass
 class Graph:
     """Running node processes of one mission (see the module docstring)."""
@@ -83,22 +125,36 @@ class Graph:
     params: Path
     procs: dict[str, subprocess.Popen] = field(default_factory=dict)
     logs: dict[str, Path] = field(default_factory=dict)
+    #: argv (before ``--ros-args``) of a node run by another executable, e.g. ``{"governor": [...]}``.
+    commands: dict[str, list[str]] = field(default_factory=dict)
+
+    def argv(self, name: str) -> list[str]:
+        """Command line of a node: its module (or its replacement) + ``--ros-args --params-file``."""
+        head = self.commands.get(name) or [sys.executable, "-m", NODE_MODULES[name]]
+        return [*head, "--ros-args", "--params-file", str(self.params)]
 
     def start(self, names: Iterable[str]) -> None:
         for name in names:
             log = self.workdir / f"{name}.log"
             self.logs[name] = log
+            env = exec_environment(self.env) if name in self.commands else self.env
             with open(log, "wb") as out:
                 self.procs[name] = subprocess.Popen(
-                    [sys.executable, "-m", NODE_MODULES[name], "--ros-args", "--params-file",
-                     str(self.params)], env=self.env, stdout=out, stderr=subprocess.STDOUT,
-                    stdin=subprocess.DEVNULL, start_new_session=True)
+                    self.argv(name), env=env, stdout=out, stderr=subprocess.STDOUT,
+                    stdin=subprocess.DEVNULL, start_new_session=True, preexec_fn=die_with_parent())
 
     def tail(self, name: str, lines: int = 15) -> str:
         try:
             return "\n".join(self.logs[name].read_text(errors="replace").splitlines()[-lines:])
         except OSError:
             return ""
+
+    def reason(self, name: str) -> str:
+        """The last line of a node's log that names an error (else its last line), shortened."""
+        lines = [ln.strip() for ln in self.tail(name, 40).splitlines() if ln.strip()]
+        errors = [ln for ln in lines if "error" in ln.lower()]
+        text = (errors or lines or ["no output"])[-1]
+        return text if len(text) <= 300 else text[:297] + "..."
 
     def stop(self, names: Iterable[str], timeout_s: float = 10.0) -> None:
         """SIGINT the named children, wait, escalate to SIGKILL after ``timeout_s``."""
@@ -126,21 +182,49 @@ def default_bag_path(governor: str) -> Path:
     return Path("bags") / f"{datetime.now(timezone.utc):%Y%m%dT%H%M%SZ}_{label}"
 
 
+def discard_empty_bag(bag: Path) -> bool:
+    """Remove a bag directory the recorder closed without a message (so a rerun may use the
+    path); True if it was removed. A bag with messages is left as it is."""
+    import yaml as _yaml
+
+    try:
+        meta = _yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    except (OSError, TypeError, KeyError, _yaml.YAMLError):
+        return False
+    if meta.get("message_count") != 0:
+        return False
+    names = {"metadata.yaml", *meta.get("relative_file_paths", [])}
+    if any(p.name not in names for p in bag.iterdir()):
+        return False   # something else lives there: leave it
+    shutil.rmtree(bag, ignore_errors=True)
+    return True
+
+
 def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | None = None,
                     bag: str | os.PathLike | None = None, config_path: str | None = None,
                     overrides: list[str] | None = None, *, stop_on_dock: bool = False,
                     node_params: dict[str, Any] | None = None, timeout_s: float = 3600.0,
-                    keep_logs: bool = False, on_started: Any = None) -> dict[str, Any]:
-    """Run one lockstep mission as the ROS graph; return MissionResult.metrics() + ``bag`` + ``ros``.
+                    keep_logs: bool = False, on_started: Any = None,
+                    governor_exec: str | None = None) -> dict[str, Any]:
+    """Run one lockstep mission as the ROS graph; return the recorded metrics
+    (:func:`cikan_ros.ros.record.recorded_metrics`) + ``bag`` + ``ros``.
 
+    ``governor_exec``: a command line run in place of governor_node (the README's contract); it
+    gets ``--ros-args --params-file FILE`` appended, the graph's environment, and
+    ``governor.name`` = ``exec:<command>`` (the name the bag and the metrics carry).
     ``config_path``/``overrides`` are accepted for the record (``cfg`` already contains them).
     ``node_params`` adds or overrides node parameters (e.g. deadlines); ``on_started(graph)`` is
-    called once every process runs (tests use it to inject faults).
+    called once every process runs (tests use it to inject faults). A failure raises one
+    CikanError line naming the node, its exit code, its last error line and where the logs are;
+    a bag without a message is removed then, a bag with messages is kept (closed, readable).
     """
-    from .record import mission_from_bag
+    from .record import recorded_metrics
 
+    commands = {"governor": exec_command(governor_exec)} if governor_exec is not None else {}
+    if governor_exec is not None:
+        governor = f"exec:{governor_exec}"
     bag_path = Path(bag) if bag is not None else default_bag_path(governor)
-    if bag_path.exists() and any(bag_path.iterdir()):
+    if bag_path.exists() and (not bag_path.is_dir() or any(bag_path.iterdir())):
         raise CikanError(f"bag directory {bag_path} exists and is not empty")
     cached_predictor(cfg)  # fill the gain-table cache once, so every node starts in a second
     workdir = Path(tempfile.mkdtemp(prefix="cikan_ros_"))
@@ -148,12 +232,16 @@ def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | Non
               "sim.stop_on_dock": bool(stop_on_dock), "recorder.bag": str(bag_path.resolve()),
               "graph.peers": ["sim", "governor", "controller", "recorder"], **(node_params or {})}
     graph = Graph(workdir, ros_environment(pick_domain_id(), workdir / "ros_log"),
-                  write_params(workdir / "params.yaml", cfg, params))
-    failed = True
+                  write_params(workdir / "params.yaml", cfg, params), commands=commands)
+    failure: str | None = None
     wall0 = time.perf_counter()
 
     def terminate(_signum: int, _frame: Any) -> None:
         raise KeyboardInterrupt
+
+    def exited(name: str, rc: int) -> str:
+        who = f"governor ({governor})" if name in commands else f"{name}_node"
+        return f"{who} exited with code {rc}: {graph.reason(name)}"
 
     main_thread = threading.current_thread() is threading.main_thread()
     # SIGTERM stops the graph like Ctrl-C (signal handlers exist only in the main thread).
@@ -163,33 +251,35 @@ def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | Non
         if on_started is not None:
             on_started(graph)
         sim = graph.procs["sim"]
-        while sim.poll() is None:
+        while sim.poll() is None and failure is None:
             for name, proc in graph.procs.items():
                 rc = proc.poll()
                 if name != "sim" and rc is not None and rc > 0:
-                    raise CikanError(f"{name}_node exited with code {rc}:\n{graph.tail(name)}")
+                    failure = exited(name, rc)
+                    break
             if time.perf_counter() - wall0 > timeout_s:
-                raise CikanError(f"mission did not finish within {timeout_s:g} s (wall)")
+                failure = f"mission did not finish within {timeout_s:g} s (wall)"
             time.sleep(0.05)
-        if sim.returncode != 0:
-            raise CikanError(f"sim_node exited with code {sim.returncode}:\n{graph.tail('sim')}")
-        failed = False
+        if failure is None and sim.returncode != 0:
+            failure = exited("sim", sim.returncode)
     finally:
         graph.stop_all()
         if main_thread:
             signal.signal(signal.SIGTERM, previous)
-        if failed or keep_logs:
+        if failure is None and keep_logs:
             sys.stderr.write(f"cikan mission: node logs kept in {workdir}\n")
-        else:
+        elif failure is None:   # success, or interrupted (the bag is closed, the logs go)
             shutil.rmtree(workdir, ignore_errors=True)
+    if failure is not None:
+        kept = "removed the empty bag" if discard_empty_bag(bag_path) else f"bag kept in {bag_path}"
+        raise CikanError(f"{failure} ({kept}; node logs in {workdir})")
     wall = time.perf_counter() - wall0
     rc = graph.procs["recorder"].returncode
     if rc != 0:
         raise CikanError(f"recorder_node ended abnormally (exit code {rc}): the bag {bag_path} holds "
                          "the messages up to its last flushed chunk; no metrics computed")
-    result, summary = mission_from_bag(bag_path, cfg, governor)
-    metrics = result.metrics()
+    _, metrics = recorded_metrics(bag_path, cfg, governor)
     metrics["bag"] = str(bag_path)
-    metrics["ros"] = {"launch_wall_s": wall, **summary,
+    metrics["ros"] = {"launch_wall_s": wall, **metrics.get("ros", {}),
                       "exit_codes": {n: p.returncode for n, p in graph.procs.items()}}
     return metrics

@@ -1,10 +1,17 @@
 """A mission as recorded in a bag: rebuild the :class:`MissionResult` of a ROS run (read with
 rosbags), so the ROS graph reports exactly the metrics of the offline loop.
 
-Per step k (stamp t_k): x_d, x_c from the odometry; the thrust the simulator APPLIED (its
-/diagnostics step record, exact floats; zero where it had no valid command); the shift in force
-from /tsg/time_shift (held forward where the governor did not answer, as the controller does);
-governor decisions (path, Verify calls, wall time) from the governor's /diagnostics records.
+The typed topics are enough (any governor keeping the topic contract, see the README). Per step
+k (stamp t_k): x_d, x_c from the odometry; the shift in force from /tsg/time_shift (the first
+valid shift stamped t_k, held forward where none came, as the controller does; NaN before the
+first); the applied thrust from /deputy/accel_cmd (the first valid command stamped t_k, zero
+where none came, as the simulator does). The decisions are the shifts at the first step and at
+every step an update was due, with their ``source`` as the path.
+
+Optional extras, used when recorded: the simulator's /diagnostics step records (the thrust it
+actually applied, exact floats, e.g. zero after a missed deadline), the controller's hold
+records (the shift it held when a shift came late), and governor_node's decision records
+(Verify calls and wall time of each decision; without them these are unknown: NaN / None).
 """
 
 from __future__ import annotations
@@ -19,11 +26,11 @@ import numpy as np
 from ..config import Config
 from ..constraints import margins
 from ..errors import CikanError
-from ..governor import PATH_INITIAL, UpdateRecord
-from ..mission import MissionResult
-from ..units import m_to_km, ns_to_seconds
-from .convert import Timeline, diagnostic_values, floats, time_to_ns
-from .graph import CHIEF_ODOM, DEPUTY_ODOM, DIAGNOSTICS, TIME_SHIFT
+from ..governor import UpdateRecord
+from ..mission import MissionResult, Schedule
+from ..units import m_to_km
+from .convert import MessageError, Timeline, accel_from_msg, diagnostic_values, floats, shift_from_msg, time_to_ns
+from .graph import ACCEL_CMD, CHIEF_ODOM, DEPUTY_ODOM, DIAGNOSTICS, TIME_SHIFT
 
 
 #: Integer values of the simulator's summary record.
@@ -47,8 +54,29 @@ def _state(msg: Any) -> np.ndarray:
     return m_to_km(np.array([p.x, p.y, p.z, v.x, v.y, v.z]))
 
 
+def _decision(tau_s: float, path: str, verify_calls: int = 0, wall_s: float = math.nan,
+              cpu_s: float = math.nan) -> UpdateRecord:
+    """One decision record (Verify calls, wall and CPU time unknown unless governor_node recorded
+    them); its update index and tau_prev are set from the step it was applied at."""
+    return UpdateRecord(tau_s, path, verify_calls, wall_s, cpu_s=cpu_s)
+
+
+def _first_valid(msgs: list[tuple[int, Any]], tl: Timeline, decode: Any) -> dict[int, Any]:
+    """{k: decoded value} of the first message stamped t_k that decodes (others are rejected)."""
+    out: dict[int, Any] = {}
+    for _, m in msgs:
+        try:
+            k = tl.step(time_to_ns(m.header.stamp))
+            value = decode(m)
+        except MessageError:
+            continue
+        out.setdefault(k, value)
+    return out
+
+
 def mission_from_bag(path: str | Path, cfg: Config, governor: str) -> tuple[MissionResult, dict[str, Any]]:
-    """(MissionResult, the simulator's summary values) of a recorded lockstep mission."""
+    """(MissionResult, the simulator's summary values + ``missing_shifts``) of a recorded lockstep
+    mission. ``missing_shifts``: steps 0..K-1 with no valid time shift (the controller held)."""
     msgs = read_bag(path)
     tl = Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
     deputy = {tl.step(time_to_ns(m.header.stamp)): _state(m) for _, m in msgs.get(DEPUTY_ODOM, [])}
@@ -56,43 +84,74 @@ def mission_from_bag(path: str | Path, cfg: Config, governor: str) -> tuple[Miss
     if not deputy or sorted(deputy) != list(range(len(deputy))) or sorted(chief) != sorted(deputy):
         raise CikanError(f"bag {path}: the deputy/chief states do not cover steps 0..K without gaps")
     n = len(deputy)
-    shifts: dict[int, float] = {}
-    for _, m in msgs.get(TIME_SHIFT, []):
-        stamp = time_to_ns(m.header.stamp)
-        shifts[tl.step(stamp)] = ns_to_seconds(time_to_ns(m.time_ref) - stamp)
-    u = np.zeros((n, 3))
-    initial: UpdateRecord | None = None
-    updates: list[tuple[int, UpdateRecord]] = []
+    u_max = cfg.control.u_max_kmps2
+    shifts = _first_valid(msgs.get(TIME_SHIFT, []), tl, lambda m: shift_from_msg(m)[1:])
+    commands = _first_valid(msgs.get(ACCEL_CMD, []), tl, lambda m: accel_from_msg(m, u_max))
+    applied: dict[int, np.ndarray] = {}
+    held: dict[int, float] = {}
+    recorded: dict[int, UpdateRecord] = {}
     summary: dict[str, Any] = {}
     for _, arr in msgs.get(DIAGNOSTICS, []):
         for st in arr.status:
             v = diagnostic_values(st)
             if st.name == "sim_node" and v.get("event") == "step":
-                u[int(v["k"])] = floats(v["u_kmps2"])
+                applied[int(v["k"])] = floats(v["u_kmps2"])
             elif st.name == "sim_node" and v.get("event") == "complete":
                 summary = {k: x if k == "event" else int(x) if k in _COUNTS else float(x)
                            for k, x in v.items()}
+            elif st.name == "controller_node" and v.get("event") == "hold":
+                held[tl.step(time_to_ns(arr.header.stamp))] = float(v["tau_s"])
             elif st.name == "governor_node" and v.get("event") == "update":
-                rec = UpdateRecord(float(v["tau_s"]), v["path"], int(v["verify_calls"]), float(v["wall_s"]))
-                if rec.path == PATH_INITIAL and initial is None:
-                    initial = rec
-                elif rec.path != PATH_INITIAL:
-                    updates.append((int(v["k"]), rec))
-    if initial is None:
-        raise CikanError(f"bag {path}: no initial governor decision recorded")
-    tau = np.empty(n)
-    current = initial.tau_s
+                recorded.setdefault(int(v["k"]), _decision(float(v["tau_s"]), v["path"],
+                                                           int(v["verify_calls"]), float(v["wall_s"]),
+                                                           float(v.get("cpu_s", "nan"))))
+    schedule = Schedule(cfg)
+    tau = np.full(n, math.nan)
+    u = np.zeros((n, 3))
+    current = math.nan
+    initial: UpdateRecord | None = None
+    updates: list[tuple[int, UpdateRecord]] = []
     for k in range(n):
-        current = shifts.get(k, current)
+        u[k] = applied.get(k, commands.get(k, u[k]))
+        if k in held:                       # the controller held (the shift came late or never)
+            current = held[k]
+        elif k in shifts and k < n - 1:
+            current = shifts[k][0]
+            rec = recorded.get(k) or _decision(current, shifts[k][1])
+            if initial is None:
+                initial = replace(rec, k=k // schedule.every)
+            elif schedule.update_due(k):
+                updates.append((k, replace(rec, k=k // schedule.every, tau_prev=float(tau[k - 1]))))
         tau[k] = current
+    if initial is None:
+        raise CikanError(f"bag {path}: no time shift recorded on {TIME_SHIFT}")
+    summary["missing_shifts"] = sum(1 for k in range(n - 1) if k not in shifts)
     x_d = np.array([deputy[k] for k in range(n)])
     x_c = np.array([chief[k] for k in range(n)])
     t = np.array([tl.seconds(tl.stamp_ns(k)) for k in range(n)])
-    m = margins(x_d, x_c, u, cfg.constraints, cfg.control.u_max_kmps2)
+    m = margins(x_d, x_c, u, cfg.constraints, u_max)
     m.h2[-1] = math.nan  # no command is applied at the final instant
-    updates.sort(key=lambda p: p[0])
-    per_update = round(cfg.tsg.update_period_s / cfg.control.period_s)
-    records = [replace(r, k=k // per_update, tau_prev=float(tau[k - 1])) for k, r in updates]
     result = MissionResult(cfg, governor, t, x_d, x_c, u, tau, m, initial,
-                           np.array([t[k] for k, _ in updates]), records)
+                           np.array([t[k] for k, _ in updates]), [r for _, r in updates])
     return result, summary
+
+
+def recorded_metrics(path: str | Path, cfg: Config, governor: str) -> tuple[MissionResult, dict[str, Any]]:
+    """(MissionResult, metrics) of a recorded mission: :meth:`MissionResult.metrics`, plus the
+    governor contract audit of its shifts (:func:`cikan_ros.mission.audit_shifts`):
+    ``unverified_shifts``, ``off_schedule_shifts`` and ``missing_shifts`` (steps with no valid
+    shift), and the simulator's summary under ``ros`` when it was recorded. Values the bag does
+    not hold (decision wall times without governor_node's records) are None."""
+    from ..mission import audit_shifts
+    from ..tsg import Predictor
+
+    result, summary = mission_from_bag(path, cfg, governor)
+    audit = audit_shifts(Predictor.from_config(cfg), result.x_d, result.tau)
+    # What the bag does not tell (decision wall times without governor_node's records) is None.
+    metrics = {k: None if isinstance(v, float) and not math.isfinite(v) else v
+               for k, v in result.metrics().items()}
+    metrics.update(unverified_shifts=audit.unverified, off_schedule_shifts=audit.off_schedule,
+                   missing_shifts=summary.pop("missing_shifts"))
+    if summary:
+        metrics["ros"] = summary
+    return result, metrics
