@@ -16,26 +16,10 @@ from typing import Any, Mapping
 import yaml
 
 from .errors import ConfigError
-
-def _default_config_path() -> Path:
-    """``config/cikan.yaml`` of the repository, else the copy a colcon/ament install puts in
-    ``<prefix>/share/cikan_ros/config/`` (found through $AMENT_PREFIX_PATH or this Python's prefix)."""
-    import os
-    import sys
-
-    repo = Path(__file__).resolve().parent.parent / "config" / "cikan.yaml"
-    if repo.exists():
-        return repo
-    prefixes = [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p] + [sys.prefix]
-    for prefix in prefixes:
-        candidate = Path(prefix) / "share" / "cikan_ros" / "config" / "cikan.yaml"
-        if candidate.exists():
-            return candidate
-    return repo
-
+from .paths import shipped
 
 #: The default parameter file shipped with the package.
-DEFAULT_CONFIG_PATH = _default_config_path()
+DEFAULT_CONFIG_PATH = shipped("config/cikan.yaml")
 
 
 def _check(cond: bool, name: str, value: Any, what: str) -> None:
@@ -309,6 +293,27 @@ def _flatten(prefix: str, node: Mapping[str, Any], out: dict[str, Any]) -> None:
             out[name] = v
 
 
+def read_params(path: str | Path) -> dict[str, Any]:
+    """``{"group.key": value}`` of the ``/**: ros__parameters:`` section of a ROS 2 params file;
+    ConfigError naming what is wrong with the file."""
+    p = Path(path)
+    try:
+        doc = yaml.safe_load(p.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"configuration file not found: {p}") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"configuration file {p} is not valid YAML: {exc}") from None
+    if not isinstance(doc, Mapping):
+        raise ConfigError(f"configuration file {p} must hold a mapping")
+    section = doc.get("/**", doc)
+    params = section.get("ros__parameters") if isinstance(section, Mapping) else None
+    if not isinstance(params, Mapping):
+        raise ConfigError(f"configuration file {p} has no '/**: ros__parameters:' section")
+    flat: dict[str, Any] = {}
+    _flatten("", params, flat)
+    return flat
+
+
 def load_config(path: str | Path | None = None, **overrides: Any) -> Config:
     """Read a ROS 2 params YAML file (the ``/**`` section) and apply dotted-name overrides.
 
@@ -318,18 +323,6 @@ def load_config(path: str | Path | None = None, **overrides: Any) -> Config:
     flat: dict[str, Any] = {}
     p = Path(path) if path is not None else DEFAULT_CONFIG_PATH
     if path is not None or p.exists():
-        try:
-            doc = yaml.safe_load(p.read_text())
-        except FileNotFoundError:
-            raise ConfigError(f"configuration file not found: {p}") from None
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"configuration file {p} is not valid YAML: {exc}") from None
-        if not isinstance(doc, Mapping):
-            raise ConfigError(f"configuration file {p} must hold a mapping")
-        section = doc.get("/**", doc)
-        params = section.get("ros__parameters") if isinstance(section, Mapping) else None
-        if not isinstance(params, Mapping):
-            raise ConfigError(f"configuration file {p} has no '/**: ros__parameters:' section")
-        _flatten("", params, flat)
+        flat = read_params(p)
     flat.update(overrides)
     return config_from_flat(flat)

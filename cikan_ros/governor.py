@@ -122,9 +122,17 @@ class ConventionalGovernor:
 #: Names of the learned model families shipped in ``models/`` (see ``cikan_ros.learn``).
 LEARNED_NAMES = ("cikan", "grbf", "rswaf", "relu", "gelu")
 GOVERNOR_NAMES = ("conventional",) + LEARNED_NAMES
-#: Every governor of the results campaign: the conventional TSG, the five families under the
-#: default keep rule and under the paper's Algorithm 1.
-CAMPAIGN_NAMES = GOVERNOR_NAMES + tuple(f"{n}@paper" for n in LEARNED_NAMES)
+
+
+def campaign_names() -> list[str]:
+    """Every governor of the results campaign (``cikan montecarlo --governor all``): the
+    conventional TSG; each family's default model under the keep rule and under the paper's
+    Algorithm 1; and, where ``models/<family>-prev`` ships (τ_{k-1} as an input), that model
+    under the keep rule."""
+    from .learn.modelfile import MODELS_DIR
+
+    names = list(GOVERNOR_NAMES) + [f"{n}@paper" for n in LEARNED_NAMES]
+    return names + [f"{n}-prev" for n in LEARNED_NAMES if (MODELS_DIR / f"{n}-prev").is_dir()]
 
 
 def split_rule(name: str) -> tuple[str, str | None]:

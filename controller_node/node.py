@@ -26,10 +26,13 @@ from sensor_msgs.msg import TimeReference
 from cikan_ros.mission import ClosedLoop
 from cikan_ros.ros import convert as cv
 from cikan_ros.ros.graph import (PATH_HOLD, ACCEL_CMD, DEPUTY_ODOM, DIAGNOSTICS, QOS_STREAM,
-                                 TIME_SHIFT, Readiness, cached_predictor, declare, declare_config,
-                                 declare_graph, qos_for, required_readers, run_node)
+                                 TIME_SHIFT, Readiness, cached_predictor, declare_config, qos_for,
+                                 required_readers, run_node)
+from cikan_ros.ros.params import NodeSpec, declare_parameters
 
 NAME = "controller_node"
+#: Parameters: the groups controller and graph of config/nodes.yaml, and the mission configuration.
+SPEC = NodeSpec(NAME, __doc__, ("controller", "graph"))
 
 
 class ControllerNode(Node):
@@ -38,13 +41,10 @@ class ControllerNode(Node):
     def __init__(self) -> None:
         super().__init__(NAME)
         self.cfg = cfg = declare_config(self)
-        deadline = float(declare(self, "controller.tau_deadline_s", 2.0,
-                                 "wall seconds to wait for the time shift of a step before holding "
-                                 "the last verified one"))
-        lost = float(declare(self, "controller.lost_deadline_s", 0.02,
-                             "wall seconds to wait per step after a missed deadline, until the "
-                             "governor answers again"))
-        peers, timeout = declare_graph(self)
+        p = declare_parameters(self, SPEC)
+        deadline = float(p["controller.tau_deadline_s"])
+        lost = float(p["controller.lost_deadline_s"])
+        peers, timeout = [str(n) for n in p["graph.peers"]], float(p["graph.startup_timeout_s"])
         pred = cached_predictor(cfg)
         self.loop = ClosedLoop(pred)
         self.loop.command(0, 0.0, pred.orbit.state(0.0))  # load the compiled kernels now
@@ -150,4 +150,4 @@ class ControllerNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Console entry point ``controller_node``."""
-    return run_node(lambda _ctx: ControllerNode(), args)
+    return run_node(lambda _ctx: ControllerNode(), args, spec=SPEC)

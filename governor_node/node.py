@@ -14,9 +14,10 @@ the last verified shift is held: a bad model never crashes a running mission.
 
 from __future__ import annotations
 
+import json
 from typing import Any
 
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
@@ -25,11 +26,14 @@ from sensor_msgs.msg import TimeReference
 from cikan_ros.governor import make_governor, warm_up
 from cikan_ros.mission import ClosedLoop, nominal_start
 from cikan_ros.ros import convert as cv
-from cikan_ros.ros.graph import (PATH_HOLD, CHIEF_ODOM, DEPUTY_ODOM, DIAGNOSTICS, QOS_STREAM,
-                                 TIME_SHIFT, Readiness, cached_predictor, declare, declare_config,
-                                 declare_graph, qos_for, required_readers, run_node)
+from cikan_ros.ros.graph import (PATH_HOLD, CHIEF_ODOM, DEPUTY_ODOM, DIAGNOSTICS, GOVERNOR_INFO,
+                                 QOS_LATCHED, QOS_STREAM, TIME_SHIFT, Readiness, cached_predictor,
+                                 declare_config, qos_for, required_readers, run_node)
+from cikan_ros.ros.params import NodeSpec, declare_parameters
 
 NAME = "governor_node"
+#: Parameters: the groups governor and graph of config/nodes.yaml, and the mission configuration.
+SPEC = NodeSpec(NAME, __doc__, ("governor", "graph"), dynamic=("governor.name",))
 
 
 class GovernorNode(Node):
@@ -38,11 +42,9 @@ class GovernorNode(Node):
     def __init__(self) -> None:
         super().__init__(NAME)
         self.cfg = cfg = declare_config(self)
-        name = str(declare(self, "governor.name", "conventional",
-                           "governor: conventional, cikan, grbf, rswaf, relu, gelu, or a model path "
-                           "(may be changed at run time; a model that fails to load is refused)",
-                           read_only=False))
-        peers, timeout = declare_graph(self)
+        p = declare_parameters(self, SPEC)
+        name = str(p["governor.name"])
+        peers, timeout = [str(n) for n in p["graph.peers"]], float(p["graph.startup_timeout_s"])
         self.predictor = cached_predictor(cfg)
         self.governor = make_governor(name, cfg, self.predictor)
         self.loop = ClosedLoop(self.predictor)
@@ -54,6 +56,7 @@ class GovernorNode(Node):
         self.pending: dict[int, dict[str, Any]] = {}
         self.pub_tau = self.create_publisher(TimeReference, TIME_SHIFT, QOS_STREAM)
         self.pub_diag = self.create_publisher(DiagnosticArray, DIAGNOSTICS, qos_for(DIAGNOSTICS))
+        self.requested = name
         self.add_on_set_parameters_callback(self.on_parameters)
         waits = [(self.pub_tau, required_readers(TIME_SHIFT, peers)),
                  (self.pub_diag, required_readers(DIAGNOSTICS, peers))]
@@ -75,8 +78,29 @@ class GovernorNode(Node):
                     self.diag("warn", f"governor {p.value!r} refused: {exc}", {"event": "refused"})
                     return SetParametersResult(successful=False, reason=str(exc))
                 self.governor = new
+                self.announce(str(p.value))
                 self.diag("ok", f"governor switched to {new.name}", {"event": "switched"})
         return SetParametersResult(successful=True)
+
+    def open(self) -> None:
+        """Once the parameters are checked (see run_node): announce the governor."""
+        self.pub_announce = self.create_publisher(DiagnosticStatus, GOVERNOR_INFO, QOS_LATCHED)
+        self.announce(self.requested)
+
+    def announce(self, requested: str) -> None:
+        """Say which governor flies from now on, on the latched GOVERNOR_INFO topic (the recorder
+        writes it into the bag's metadata): its name and, for a learned one, the model directory
+        and the SHA-256 of its weights."""
+        values = {"governor": self.governor.name, "requested": requested}
+        if self.governor.name != "conventional":
+            from cikan_ros.learn.modelfile import CARD, resolve
+
+            model = resolve(requested)
+            values.update(model=str(model.resolve()),
+                          weights_sha256=str(json.loads((model / CARD).read_text())["weights_sha256"]))
+        self.pub_announce.publish(cv.governor_info(NAME, values))
+        self.get_logger().info(f"flying governor {self.governor.name}"
+                               + (f" (model {values['model']})" if "model" in values else ""))
 
     def warm_up(self, governor: Any) -> None:
         """Load and run every kernel (and a learned governor's network) once, on the nominal start,
@@ -135,4 +159,4 @@ class GovernorNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Console entry point ``governor_node``."""
-    return run_node(lambda _ctx: GovernorNode(), args)
+    return run_node(lambda _ctx: GovernorNode(), args, spec=SPEC)

@@ -29,10 +29,13 @@ from cikan_ros.dynamics import Plant
 from cikan_ros.mission import ClosedLoop, nominal_start, sample_start
 from cikan_ros.ros import convert as cv
 from cikan_ros.ros.graph import (ACCEL_CMD, CHIEF_ODOM, CLOCK, DEPUTY_ODOM, DIAGNOSTICS, QOS_STREAM,
-                                 Readiness, cached_predictor, declare, declare_config, declare_graph,
-                                 qos_for, required_readers, run_node)
+                                 Readiness, cached_predictor, declare_config, qos_for, required_readers,
+                                 run_node)
+from cikan_ros.ros.params import NodeSpec, declare_parameters
 
 NAME = "sim_node"
+#: Parameters: the groups sim and graph of config/nodes.yaml, and the mission configuration.
+SPEC = NodeSpec(NAME, __doc__, ("sim", "graph"))
 
 
 class SimNode(Node):
@@ -41,19 +44,13 @@ class SimNode(Node):
     def __init__(self) -> None:
         super().__init__(NAME)
         self.cfg = cfg = declare_config(self)
-        seed = int(declare(self, "sim.seed", -1, "Monte Carlo seed of the deputy start; -1: nominal start"))
-        self.deadline_s = float(declare(self, "sim.command_deadline_s", 5.0,
-                                        "wall seconds to wait for the command of a step before "
-                                        "applying zero thrust"))
-        self.lost_deadline_s = float(declare(self, "sim.lost_deadline_s", 0.02,
-                                             "wall seconds to wait per step after a missed deadline, "
-                                             "until the controller answers again"))
-        self.max_rtf = float(declare(self, "sim.max_rtf", 0.0,
-                                     "pace the lockstep to at most this many simulated seconds per "
-                                     "wall second (live demos, fault drills); 0: as fast as possible"))
-        self.stop_on_dock = bool(declare(self, "sim.stop_on_dock", False,
-                                         "end the mission at docking instead of T_sim"))
-        peers, timeout = declare_graph(self)
+        p = declare_parameters(self, SPEC)
+        seed = int(p["sim.seed"])
+        self.deadline_s = float(p["sim.command_deadline_s"])
+        self.lost_deadline_s = float(p["sim.lost_deadline_s"])
+        self.max_rtf = float(p["sim.max_rtf"])
+        self.stop_on_dock = bool(p["sim.stop_on_dock"])
+        peers, timeout = [str(n) for n in p["graph.peers"]], float(p["graph.startup_timeout_s"])
         pred = cached_predictor(cfg)
         self.orbit = pred.orbit
         self.plant = Plant(pred.orbit.mu, cfg.mission.plant_substeps)
@@ -204,4 +201,4 @@ class SimNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Console entry point ``sim_node``."""
-    return run_node(lambda _ctx: SimNode(), args)
+    return run_node(lambda _ctx: SimNode(), args, spec=SPEC)

@@ -68,13 +68,33 @@ class RunData:
 
 
 def _style(gov: str) -> dict:
-    return STYLES.get(gov, dict(color="tab:purple", linestyle="-."))
+    """Line style of a governor; ``NAME@paper`` (Algorithm 1) keeps its family's colour, dotted
+    thin, and ``NAME-prev`` dash-dotted."""
+    from ..governor import split_rule
+
+    base, rule = split_rule(gov)
+    family = base.removesuffix("-prev")
+    style = dict(STYLES.get(family, dict(color="tab:purple", linestyle="-.")))
+    if rule == "paper":
+        style.update(linestyle=(0, (1, 1)), alpha=0.7)
+    elif base != family:
+        style.update(linestyle="-.")
+    return style
+
+
+def _label(gov: str) -> str:
+    from ..governor import split_rule
+
+    base, rule = split_rule(gov)
+    family = base.removesuffix("-prev")
+    label = LABELS.get(family, family) + (" (τ_{k-1} input)" if base != family else "")
+    return label + (" (Alg. 1)" if rule == "paper" else "")
 
 
 def _legend_once(ax: plt.Axes, runs: Sequence[RunData]) -> None:
     seen: dict[str, plt.Line2D] = {}
     for gov in dict.fromkeys(r.governor for r in runs):
-        seen[gov] = plt.Line2D([], [], **_style(gov), label=LABELS.get(gov, gov))
+        seen[gov] = plt.Line2D([], [], **_style(gov), label=_label(gov))
     ax.legend(handles=list(seen.values()), loc="best", fontsize=8)
 
 
@@ -147,7 +167,7 @@ def mean_tau(runs: Sequence[RunData], path: str | Path) -> Path:
         taus = np.array([r.tau[:n] for r in group])
         hours = group[0].hours[:n]
         st = _style(gov)
-        ax.plot(hours, taus.mean(axis=0), lw=1.2, **st, label=f"{LABELS.get(gov, gov)} (n = {len(group)})")
+        ax.plot(hours, taus.mean(axis=0), lw=1.2, **st, label=f"{_label(gov)} (n = {len(group)})")
         if len(group) > 2:
             ax.fill_between(hours, np.percentile(taus, 10, axis=0), np.percentile(taus, 90, axis=0),
                             color=st["color"], alpha=0.12)

@@ -46,6 +46,11 @@ COLUMNS = ("model", "rule", "architecture", "trainable_params", "paper_complexit
            "nn_accept_rate")
 
 
+def family_of(model: str) -> str:
+    """Family of a shipped model directory name: ``cikan-prev`` -> ``cikan``."""
+    return model.removesuffix("-prev")
+
+
 def _runs(gov_dir: Path) -> list[tuple[dict[str, Any], dict[str, Any], Path]]:
     out = []
     for js in sorted(gov_dir.glob("seed_*.json")):
@@ -99,8 +104,9 @@ def build_table(mc_dir: str | Path, with_rmse: bool = True) -> list[dict[str, An
 
     def order(g: str) -> tuple:
         base, rule = split_rule(g)
-        return (g != "conventional", list(PAPER).index(base) if base in PAPER else 99, base,
-                rule == "paper")
+        fam = family_of(base)
+        return (g != "conventional", list(PAPER).index(fam) if fam in PAPER else 99, fam,
+                base != fam, rule == "paper")
 
     govs = sorted((d.name for d in mc.iterdir() if d.is_dir() and any(d.glob("seed_*.json"))),
                   key=order)
@@ -184,11 +190,12 @@ def to_markdown(rows: list[dict[str, Any]]) -> str:
             f"| {_fmt(r['delta_v_kmps_mean'], '.4f')}{rel(r['delta_v_vs_conventional']) if g != 'conventional' else ''} "
             f"| {_fmt(r['t_tau_zero_s_mean'], '.0f')}{rel(r['t_tau_zero_vs_conventional']) if g != 'conventional' else ''} "
             f"| {r['successes']}/{r['runs']} | {r['violations']} | {_fmt(r['nn_accept_rate'], '.3f')} |")
-        last_of_family = i + 1 == len(rows) or split_rule(rows[i + 1]["model"])[0] != base
-        if base in PAPER and last_of_family:
-            cx, lt, lv, rmse_p, tm, tw, dv = PAPER[base]
+        fam = family_of(base)
+        last_of_family = i + 1 == len(rows) or family_of(split_rule(rows[i + 1]["model"])[0]) != fam
+        if fam in PAPER and last_of_family:
+            cx, lt, lv, rmse_p, tm, tw, dv = PAPER[fam]
             lines.append(
-                f"| *paper: {PAPER_NAMES[base]}* | {'-' if base == 'conventional' else 'paper'} | - | {cx} "
+                f"| *paper: {PAPER_NAMES[fam]}* | {'-' if fam == 'conventional' else 'paper'} | - | {cx} "
                 f"| {_fmt(lt, '.4f')}, {_fmt(lv, '.4f')} | {_fmt(rmse_p, '.4f')} "
                 f"| {tm * 1e3:.1f} / {tw * 1e3:.0f} "
                 f"| {_fmt(PAPER['conventional'][4] / tm, '.2f')} / {_fmt(PAPER['conventional'][5] / tw, '.2f')} "

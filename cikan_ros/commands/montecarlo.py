@@ -28,10 +28,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..governor import CAMPAIGN_NAMES
+    from ..governor import campaign_names
     from ..montecarlo import markdown_summary, run_campaign, summarise
 
-    governors = list(CAMPAIGN_NAMES) if args.governor == "all" else args.governor.split(",")
+    governors = campaign_names() if args.governor == "all" else args.governor.split(",")
     cfg = config_from_args(args)
     results = run_campaign(cfg, governors, args.runs, args.seed, args.out, args.workers, args.dask)
     summaries = {g: summarise(runs) for g, runs in results.items()}

@@ -80,11 +80,11 @@ def loss_breakdown(models: list[LoadedModel | tuple[str, str]], data_path: str |
     prev = part["tau_prev_s"].to_numpy(dtype=float)
     y = np.log(-tau)
     groups: list[tuple[str, np.ndarray]] = [("all", np.ones(len(y), bool))]
-    groups += [(f"|τ*| in [{lo:g}, {hi:g}) s", (-tau >= lo) & (-tau < hi)) for lo, hi in BANDS]
+    groups += [(f"\\|τ*\\| in [{lo:g}, {hi:g}) s", (-tau >= lo) & (-tau < hi)) for lo, hi in BANDS]
     hold = (tau - prev) <= HOLD_S
     groups += [("hold (π* - τ_{k-1} <= 1e-4 s)", hold), ("move", ~hold)]
     ok = [m for m in models if not isinstance(m, tuple)]
-    head = "| labels | share | " + " | ".join(m.path.name for m in ok) + " |"
+    head = "| labels | share of split | " + " | ".join(m.path.name for m in ok) + " |"
     lines = [f"Split `{split}` of `{Path(data_path).name}` ({len(y):,} labels); loss = the paper's "
              "definition at θ_c = 1.", "", head, "|" + "---|" * (2 + len(ok))]
     preds = {}

@@ -20,14 +20,15 @@ from typing import Any, Mapping
 import numpy as np
 from numpy.typing import NDArray
 
+from ..paths import shipped
 from .arch import FAMILIES, NORM_TENSORS, Arch, norm_tensor_shapes
 from .errors import ModelFileError
 
 FORMAT = "cikan-model/1"
 WEIGHTS = "model.safetensors"
 CARD = "card.json"
-#: Shipped models: ``models/<family>/`` at the repository root.
-MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
+#: Shipped models: ``models/<family>/`` at the repository root, or in an install's share/cikan_ros.
+MODELS_DIR = shipped("models")
 
 
 @dataclass(frozen=True)

@@ -23,12 +23,13 @@ import copy
 import json
 import os
 import re
-import sys
 from pathlib import Path
 from typing import Any
 
 import yaml
 from mcap.writer import CompressionType, Writer
+
+from ..paths import install_prefixes
 
 #: What metadata.yaml calls the files' distribution.
 ROS_DISTRO = "jazzy"
@@ -37,9 +38,8 @@ _PRIMITIVES = {"bool", "byte", "char", "float32", "float64", "int8", "uint8", "i
 
 
 def share_dirs() -> list[Path]:
-    """Where installed interface packages live: $AMENT_PREFIX_PATH entries, then this Python's prefix."""
-    prefixes = [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
-    return [Path(p) / "share" for p in prefixes + [sys.prefix]]
+    """Where installed interface packages live: ``share/`` of each install prefix (:mod:`cikan_ros.paths`)."""
+    return [prefix / "share" for prefix in install_prefixes()]
 
 
 def _msg_file(pkg: str, name: str, suffix: str) -> Path:

@@ -186,12 +186,29 @@ def _text(value: Any) -> str:
 def diagnostic(name: str, level: str, message: str, stamp_ns: int,
                values: Mapping[str, Any] | None = None) -> DiagnosticArray:
     """A DiagnosticArray with one status; values become KeyValue strings (floats exactly)."""
-    status = DiagnosticStatus(level=LEVELS[level], name=name, message=message, hardware_id="cikan_ros")
-    status.values = [KeyValue(key=k, value=_text(v)) for k, v in (values or {}).items()]
     arr = DiagnosticArray()
     arr.header.stamp = ns_to_time(stamp_ns)
-    arr.status = [status]
+    arr.status = [_status(name, level, message, values)]
     return arr
+
+
+def _status(name: str, level: str, message: str, values: Mapping[str, Any] | None) -> DiagnosticStatus:
+    status = DiagnosticStatus(level=LEVELS[level], name=name, message=message, hardware_id="cikan_ros")
+    status.values = [KeyValue(key=k, value=_text(v)) for k, v in (values or {}).items()]
+    return status
+
+
+def governor_info(node: str, values: Mapping[str, Any]) -> DiagnosticStatus:
+    """The governor's announcement (/tsg/governor): message = the governor's name, ``values`` with
+    at least ``governor`` (the same name) and, for a model, ``model`` and ``weights_sha256``."""
+    return _status(node, "ok", str(values["governor"]), values)
+
+
+def governor_from_info(status: Any) -> dict[str, str]:
+    """What an announcement says: ``{"governor": name, ...}`` (a bare status: its message)."""
+    values = diagnostic_values(status)
+    values.setdefault("governor", status.message)
+    return values
 
 
 def diagnostic_values(status: Any) -> dict[str, str]:

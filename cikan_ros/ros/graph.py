@@ -12,6 +12,11 @@ QoS, chosen on purpose:
   blocks publishers when a reader dies without being noticed, which would stall the lockstep.
 - ``/clock`` offered the same way: compatible with rclpy's own best-effort /clock subscription,
   and the recorder and replay keep every tick.
+- ``/tsg/governor`` (the governor's announcement of which governor flies): RELIABLE,
+  TRANSIENT_LOCAL, depth 1, so a recorder that joins later still hears the last one.
+
+Node parameters are declared from data (:mod:`cikan_ros.ros.params`, ``config/nodes.yaml``);
+:func:`declare` declares one that is not in that file.
 """
 
 from __future__ import annotations
@@ -36,6 +41,8 @@ DEPUTY_ODOM = "/deputy/odom"
 TIME_SHIFT = "/tsg/time_shift"
 ACCEL_CMD = "/deputy/accel_cmd"
 DIAGNOSTICS = "/diagnostics"
+#: The governor announces which governor flies (diagnostic_msgs/DiagnosticStatus, latched).
+GOVERNOR_INFO = "/tsg/governor"
 
 #: Topic -> ROS type name of every topic of the graph.
 TOPIC_TYPES: dict[str, str] = {
@@ -64,6 +71,9 @@ PATH_HOLD = "hold"
 QOS_STREAM = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                         reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
 QOS_RECORD = QOS_STREAM
+#: /tsg/governor: the last announcement reaches readers that join later (transient local, depth 1).
+QOS_LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def qos_for(topic: str) -> QoSProfile:
@@ -140,22 +150,13 @@ def declare_config(node: Any, defaults: Config | None = None) -> Config:
 
 
 def declare(node: Any, name: str, default: Any, description: str, read_only: bool = True) -> Any:
-    """Declare one node parameter with a description; return its value."""
+    """Declare one node parameter with a description; return its value. (The nodes' parameters
+    live in config/nodes.yaml, so that ``--help`` lists them: prefer adding one there.)"""
     from rcl_interfaces.msg import ParameterDescriptor
 
     node.declare_parameter(name, default, ParameterDescriptor(description=description,
                                                               read_only=read_only))
     return plain(node.get_parameter(name).value)
-
-
-def declare_graph(node: Any) -> tuple[list[str], float]:
-    """``graph.peers`` (nodes in this graph) and ``graph.startup_timeout_s``."""
-    peers = declare(node, "graph.peers", ["sim", "governor", "controller"],
-                    "nodes of this graph (sim, governor, controller, recorder): a node starts only "
-                    "when the readers of its topics among them are matched")
-    timeout = declare(node, "graph.startup_timeout_s", 60.0,
-                      "wall seconds to wait for the graph's readers before starting anyway")
-    return [str(p) for p in peers], float(timeout)
 
 
 # -- predictor ---------------------------------------------------------------------------------
@@ -192,10 +193,18 @@ def make_executor(context: Any = None) -> Any:
     return SingleThreadedExecutor(context=context)
 
 
+#: Exit code of a node started with bad input (unknown parameter, bad value, unreadable file), as `cikan`.
+EXIT_BAD_INPUT = 2
+#: Exit code of a node whose peers did not show up within ``graph.startup_timeout_s``.
+EXIT_NO_PEERS = 1
+
+
 @dataclass
 class Readiness:
     """Waits (on a steady timer, never blocking) until each publisher has its readers, then calls
-    ``on_ready`` once. Used by every node so the lockstep never starts with a reader missing."""
+    ``on_ready`` once. Used by every node so the lockstep never starts with a reader missing.
+    It logs what it waits for; after ``timeout_s`` it logs what is still missing and ends the node
+    with :data:`EXIT_NO_PEERS` (through the node's ``done`` future, see :func:`run_node`)."""
 
     node: Any
     waits: list[tuple[Any, int]]   # (publisher, readers required)
@@ -207,62 +216,119 @@ class Readiness:
 
         self._clock = Clock(clock_type=ClockType.STEADY_TIME)
         self._t0 = self._clock.now()
+        self._said = False
         self._timer = self.node.create_timer(0.02, self._poll, clock=self._clock)
 
+    def missing(self) -> list[str]:
+        """One text per topic whose readers are not all matched: how many, from whom, who is there."""
+        peers = set(plain(self.node.get_parameter("graph.peers").value)) \
+            if self.node.has_parameter("graph.peers") else set()
+        out = []
+        for pub, n in self.waits:
+            count = pub.get_subscription_count()
+            if count >= n:
+                continue
+            topic = pub.topic_name
+            expected = [p for p in CONSUMERS.get(topic, ()) + ("recorder",) if p in peers]
+            there = sorted({i.node_name for i in self.node.get_subscriptions_info_by_topic(topic)})
+            out.append(f"{topic}: {count} of {n} readers (expected {', '.join(expected) or '?'}"
+                       + (f"; matched {', '.join(there)})" if there else ")"))
+        return out
+
     def _poll(self) -> None:
-        missing = [(p.topic_name, p.get_subscription_count(), n) for p, n in self.waits
-                   if p.get_subscription_count() < n]
+        missing = self.missing()
         waited = (self._clock.now() - self._t0).nanoseconds / 1e9
         if missing and waited < self.timeout_s:
+            if not self._said and waited >= 0.5:
+                self._said = True
+                self.node.get_logger().info(
+                    f"waiting up to {self.timeout_s:g} s (graph.startup_timeout_s) for the readers of "
+                    + "; ".join(missing))
             return
-        if missing:
-            self.node.get_logger().warning(f"starting without all readers after {waited:.1f} s: "
-                                           + ", ".join(f"{t} {c}/{n}" for t, c, n in missing))
         self._timer.cancel()
         self.node.destroy_timer(self._timer)
+        if missing:
+            self.node.get_logger().error(
+                f"giving up after {waited:.1f} s (graph.startup_timeout_s) without the readers of "
+                + "; ".join(missing) + " (start those nodes on this ROS_DOMAIN_ID, or set graph.peers)")
+            self.node.exit_code = EXIT_NO_PEERS
+            self.node.done.set_result(False)
+            return
         self.on_ready()
 
 
+def _rcl_message(exc: BaseException) -> str:
+    """rcl's error text without its source locations (``..., at /path/file.c:123``)."""
+    return str(exc).split(", at /")[0]
+
+
 def run_node(factory: Callable[[Any], Any], args: list[str] | None = None,
-             signal_handlers: bool = True, exit_process: bool = True) -> int:
+             signal_handlers: bool = True, spec: Any = None, exit_process: bool = True) -> int:
     """Run one node in this process: init, executor, spin, and the Jazzy shutdown pattern.
 
-    ``factory(context)`` builds the node; a node with a ``done`` future (rclpy Future) ends the
-    process when it completes. Returns the exit code (0, or 1 if the node could not start).
+    ``args``: the command line with the program name first (default ``sys.argv``). With a
+    :class:`~cikan_ros.ros.params.NodeSpec`, ``--help`` prints the node's usage and parameters
+    and returns 0 without starting rclpy. ``factory(context)`` builds the node; the process ends
+    when its ``done`` future completes (one is attached if the node has none); a node's ``open()``,
+    if it has one, runs once the parameters are checked. Returns the exit code:
+    the node's ``exit_code`` (0 unless it gave up), :data:`EXIT_BAD_INPUT` for bad input (unknown
+    parameter, bad value, unreadable params file or model) with one line on stderr.
     """
+    import sys
+
     import rclpy
+    from rclpy.exceptions import ParameterException
     from rclpy.executors import ExternalShutdownException
     from rclpy.signals import SignalHandlerOptions
+    from rclpy.task import Future
 
-    from ..errors import CikanError
+    from ..errors import CikanError, ConfigError
+    from .params import command_line_names, parse_node_args, ros_section, unknown_overrides
 
-    rclpy.init(args=args, signal_handler_options=None if signal_handlers else SignalHandlerOptions.NO)
+    argv = list(sys.argv if args is None else args)
+    name = spec.name if spec is not None else Path(argv[0] if argv else "node").name
+
+    def bad_input(text: str) -> int:
+        print(f"{name}: error: {text}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+
+    try:
+        if spec is not None and not parse_node_args(spec, argv[1:]):
+            return 0
+    except ConfigError as exc:
+        return bad_input(str(exc))
+    try:
+        rclpy.init(args=argv, signal_handler_options=None if signal_handlers else SignalHandlerOptions.NO)
+    except RuntimeError as exc:  # rclpy's RCLError / UnknownROSArgsError: a malformed --ros-args part
+        return bad_input(_rcl_message(exc))
     node = None
     code = 0
     try:
         node = factory(None)
+        # rclpy keeps the overrides a node received and the parameters it declared only privately.
+        problems = unknown_overrides(node._parameters, node._parameter_overrides,
+                                     command_line_names(ros_section(argv[1:])[1]))
+        if problems:
+            raise ConfigError(f"unknown parameter{'s' if len(problems) > 1 else ''} {', '.join(problems)}"
+                              f" (the parameters of {name}: {name} --help)")
+        if getattr(node, "open", None) is not None:
+            node.open()  # what a node creates only once its parameters are known to be right
         executor = make_executor()
         executor.add_node(node)
-        done = getattr(node, "done", None)
+        if getattr(node, "done", None) is None:
+            node.done = Future()
+        done = node.done
         if os.environ.get("CIKAN_ROS_EXECUTOR", "events") == "events":
             # EventsExecutor (rclpy 7.1.6 wheels) fires timers only inside a spin with a timeout.
-            from rclpy.task import Future
-
-            done = done if done is not None else Future()
             while rclpy.ok() and not done.done():
                 executor.spin_until_future_complete(done, timeout_sec=0.5)
-        elif done is not None:
-            executor.spin_until_future_complete(done)
         else:
-            executor.spin()
+            executor.spin_until_future_complete(done)
         code = int(getattr(node, "exit_code", 0))
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except CikanError as exc:
-        import sys
-
-        print(f"[cikan_ros] error: {exc}", file=sys.stderr)
-        code = 1
+    except (CikanError, ParameterException) as exc:
+        code = bad_input(str(exc))
     finally:
         if node is not None:
             close = getattr(node, "close", None)

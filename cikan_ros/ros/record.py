@@ -26,9 +26,9 @@ import numpy as np
 from ..config import Config
 from ..constraints import margins
 from ..errors import CikanError
-from ..governor import PATH_INITIAL, UpdateRecord
+from ..governor import UpdateRecord
 from ..mission import MissionResult, Schedule
-from ..units import m_to_km, ns_to_seconds
+from ..units import m_to_km
 from .convert import MessageError, Timeline, accel_from_msg, diagnostic_values, floats, shift_from_msg, time_to_ns
 from .graph import ACCEL_CMD, CHIEF_ODOM, DEPUTY_ODOM, DIAGNOSTICS, TIME_SHIFT
 

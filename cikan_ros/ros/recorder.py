@@ -5,6 +5,8 @@ sim-time record in which the messages of step k share t_k, whatever their arriva
 Chunks are flushed every ``recorder.flush_period_s`` (wall) or ``recorder.chunk_bytes``, so a
 crash loses at most the chunk in progress (see :mod:`cikan_ros.ros.bag`). SIGINT/SIGTERM: the
 recorder keeps taking messages until none came for ``recorder.drain_s``, then closes the bag.
+The governor's announcements (/tsg/governor, latched) go into the bag's metadata (custom_data
+``cikan_ros.governor``: the governors that flew, in order; ``cikan_ros.governor_announcements``).
 """
 
 from __future__ import annotations
@@ -12,17 +14,26 @@ from __future__ import annotations
 import json
 import signal
 import time
+from datetime import datetime, timezone
+from pathlib import Path
 from typing import Any
 
+from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.task import Future
 
 from . import convert as cv
+from ..errors import ConfigError
 from .bag import BagWriter, qos_dict
-from .graph import QOS_RECORD, TOPIC_TYPES, declare, declare_config, message_class, run_node
+from .graph import (GOVERNOR_INFO, QOS_LATCHED, QOS_RECORD, TOPIC_TYPES, declare_config, message_class,
+                    run_node)
+from .graph_spec import UTC_FORMAT
+from .params import NodeSpec, declare_parameters
 
 NAME = "recorder_node"
+#: Parameters: the group recorder of config/nodes.yaml, and the mission configuration (for the bag).
+SPEC = NodeSpec(NAME, __doc__, ("recorder",))
 
 
 class RecorderNode(Node):
@@ -30,42 +41,55 @@ class RecorderNode(Node):
 
     def __init__(self) -> None:
         super().__init__(NAME)
-        bag = str(declare(self, "recorder.bag", "", "bag directory to create (must not exist or be empty)"))
-        topics = declare(self, "recorder.topics", list(TOPIC_TYPES),
-                         "topics to record (types from the graph's topic table)")
-        self.flush_period_s = float(declare(self, "recorder.flush_period_s", 1.0,
-                                            "wall seconds between chunk flushes"))
-        self.chunk_bytes = int(declare(self, "recorder.chunk_bytes", 256 * 1024,
-                                       "message bytes after which a chunk is flushed"))
-        self.drain_s = float(declare(self, "recorder.drain_s", 0.3,
-                                     "on SIGINT/SIGTERM: close once no message came for this long"))
-        if not bag:
-            from ..errors import ConfigError
-
+        p = declare_parameters(self, SPEC)
+        utc = datetime.now(timezone.utc).strftime(UTC_FORMAT)
+        self.bag_dir = Path(str(p["recorder.bag"]).replace("{utc}", utc))
+        self.topics = [str(t) for t in p["recorder.topics"]]
+        self.flush_period_s = float(p["recorder.flush_period_s"])
+        self.chunk_bytes = int(p["recorder.chunk_bytes"])
+        self.drain_s = float(p["recorder.drain_s"])
+        if not str(p["recorder.bag"]):
             raise ConfigError("recorder.bag (the bag directory) must be set")
-        # The bag carries what it takes to analyse it: the configuration and the governor's name.
-        cfg = declare_config(self)
-        governor = str(declare(self, "governor.name", "conventional",
-                               "governor of the recorded mission (stored in the bag's metadata)"))
-        self.bag = BagWriter(bag, self.chunk_bytes, {
-            "cikan_ros.config": json.dumps(cfg.flat(), sort_keys=True), "cikan_ros.governor": governor})
+        if self.bag_dir.exists() and (not self.bag_dir.is_dir() or any(self.bag_dir.iterdir())):
+            raise ConfigError(f"recorder.bag: {self.bag_dir} exists and is not an empty directory")
+        unknown = [t for t in self.topics if t not in TOPIC_TYPES]
+        if unknown:
+            raise ConfigError(f"recorder.topics: unknown topic {unknown[0]!r}; known: {list(TOPIC_TYPES)}")
+        # The bag carries what it takes to analyse it: the configuration, and the governor that
+        # flew as the governor announces it (GOVERNOR_INFO), never a default of the recorder's.
+        self.cfg = declare_config(self)
+        self.bag: BagWriter | None = None
+        self.announced: list[dict[str, str]] = []
         self.done = Future()
         self.stopping = False
         self.last_message = time.monotonic()
         self.stop_requested_at = 0.0
-        for topic in topics:
-            if topic not in TOPIC_TYPES:
-                from ..errors import ConfigError
 
-                raise ConfigError(f"recorder.topics: unknown topic {topic!r}; known: {list(TOPIC_TYPES)}")
+    def open(self) -> None:
+        """Create the bag and subscribe (called once the node's parameters are checked)."""
+        self.bag = BagWriter(self.bag_dir, self.chunk_bytes,
+                             {"cikan_ros.config": json.dumps(self.cfg.flat(), sort_keys=True)})
+        for topic in self.topics:
             self.create_subscription(message_class(TOPIC_TYPES[topic]), topic,
                                      lambda data, t=topic: self.on_message(t, data), QOS_RECORD, raw=True)
+        self.create_subscription(DiagnosticStatus, GOVERNOR_INFO, self.on_governor, QOS_LATCHED)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(self.flush_period_s, self.bag.flush, clock=steady)
         self.create_timer(0.05, self.check_stop, clock=steady)
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, self.request_stop)
-        self.get_logger().info(f"recording {len(topics)} topics to {bag}")
+        self.get_logger().info(f"recording {len(self.topics)} topics to {self.bag_dir}")
+
+    def on_governor(self, msg: DiagnosticStatus) -> None:
+        """The governor's announcement: into the bag's metadata (every governor that flew, in order)."""
+        info = cv.governor_from_info(msg)
+        if self.announced and self.announced[-1] == info:
+            return
+        self.announced.append(info)
+        self.bag.custom_data["cikan_ros.governor"] = " -> ".join(a["governor"] for a in self.announced)
+        self.bag.custom_data["cikan_ros.governor_announcements"] = json.dumps(self.announced)
+        self.bag.write_metadata()
+        self.get_logger().info(f"governor announced: {info['governor']}")
 
     def on_message(self, topic: str, data: bytes) -> None:
         self.last_message = time.monotonic()
@@ -94,13 +118,15 @@ class RecorderNode(Node):
             self.done.set_result(True)
 
     def close(self) -> None:
+        if self.bag is None:
+            return
         self.bag.close()
         self.get_logger().info(f"bag closed: {sum(self.bag.counts.values())} messages in {self.bag.dir}")
 
 
 def main(args: list[str] | None = None) -> int:
     """Console entry point ``recorder_node``."""
-    return run_node(lambda _ctx: RecorderNode(), args, signal_handlers=False)
+    return run_node(lambda _ctx: RecorderNode(), args, signal_handlers=False, spec=SPEC)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,115 @@
+"""launch/mission.launch.yaml (for ROS installs; the launch package is not installable here) against
+the graph definition (cikan_ros/ros/graph_spec.py) and what the built-in launcher really starts
+(cikan_ros/ros/launch.py: its node modules and the params file it writes)."""
+
+from __future__ import annotations
+
+import re
+import tomllib
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from cikan_ros.config import load_config
+from cikan_ros.ros import graph_spec, launch
+from cikan_ros.ros.params import node_defaults
+
+ROOT = Path(__file__).resolve().parent.parent
+LAUNCH_FILE = ROOT / "launch" / "mission.launch.yaml"
+
+
+def substitute(text: str, args: dict[str, str], share: str) -> str:
+    """The two launch substitutions the file uses: $(var NAME) and $(find-pkg-share cikan_ros)."""
+    def one(m: re.Match) -> str:
+        kind, _, what = m.group(1).partition(" ")
+        if kind == "var":
+            return args[what]
+        assert (kind, what) == ("find-pkg-share", "cikan_ros"), m.group(0)
+        return share
+    return re.sub(r"\$\(([^)]*)\)", one, text)
+
+
+def evaluate(given: dict[str, str]) -> tuple[dict[str, dict[str, Any]], list[dict[str, Any]]]:
+    """({name: arg entity}, [node: exec, files, params, on_exit]) as `ros2 launch` reads the file with
+    ``given`` arguments: defaults filled in order, parameter values typed by YAML as launch_ros does."""
+    doc = yaml.safe_load(LAUNCH_FILE.read_text())
+    args: dict[str, str] = {}
+    declared: dict[str, dict[str, Any]] = {}
+    nodes = []
+    for entity in doc["launch"]:
+        if "arg" in entity:
+            a = entity["arg"]
+            declared[a["name"]] = a
+            args[a["name"]] = given.get(a["name"], substitute(str(a["default"]), args, "SHARE"))
+        else:
+            n = entity["node"]
+            files, params = [], {}
+            for p in n["param"]:
+                if "from" in p:
+                    files.append(substitute(p["from"], args, "SHARE"))
+                else:
+                    v = p["value"]
+                    params[p["name"]] = yaml.safe_load(substitute(v, args, "SHARE")) if isinstance(v, str) else v
+            nodes.append({"pkg": n["pkg"], "exec": n["exec"], "files": files, "params": params,
+                          "on_exit": n.get("on_exit")})
+    return declared, nodes
+
+
+def peers_as_set(params: dict[str, Any]) -> dict[str, Any]:
+    return {**params, "graph.peers": sorted(params["graph.peers"])}
+
+
+def test_launch_file_has_the_graphs_nodes_parameters_and_arguments() -> None:
+    given = {"governor": "cikan", "seed": "3", "bag": "bags/cikan3"}
+    declared, nodes = evaluate(given)
+    assert set(declared) == set(graph_spec.ARGUMENTS) == {"governor", "seed", "bag"}
+    assert all(a.get("description") for a in declared.values())
+    assert [n["exec"] for n in nodes] == [n.executable for n in graph_spec.NODES]
+    expected = graph_spec.node_parameters(governor="cikan", seed=3, bag="bags/cikan3")
+    for n in nodes:
+        assert n["pkg"] == "cikan_ros"
+        assert n["files"] == ["SHARE/config/cikan.yaml"]            # the mission configuration
+        assert peers_as_set(n["params"]) == peers_as_set(expected), n["exec"]
+        assert n["on_exit"] == ("shutdown" if n["exec"] == "sim_node" else None)  # the sim ends it
+    assert set(expected) <= set(node_defaults())                  # every one is a declared parameter
+
+
+def test_launch_file_defaults_are_the_launchers() -> None:
+    _, nodes = evaluate({})
+    params = nodes[0]["params"]
+    assert params["governor.name"] == graph_spec.ARGUMENTS["governor"] == "conventional"
+    assert params["sim.seed"] == graph_spec.ARGUMENTS["seed"] == -1
+    assert params["recorder.bag"] == graph_spec.ARGUMENTS["bag"].format(utc="{utc}", governor="conventional")
+    # the launcher's default bag: bags/<UTC time in graph_spec.UTC_FORMAT>_<governor>
+    default = launch.default_bag_path("conventional")
+    prefix, utc, rest = default.parent.as_posix(), *default.name.split("_", 1)
+    datetime.strptime(utc, graph_spec.UTC_FORMAT)
+    assert f"{prefix}/{{utc}}_{rest}" == params["recorder.bag"]
+
+
+def test_graph_spec_is_what_the_launcher_starts(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The launcher's node modules, the executables' console scripts, and the parameters it writes."""
+    assert launch.NODE_MODULES == {n.name: n.module for n in graph_spec.NODES}
+    scripts = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"]
+    for n in graph_spec.NODES:
+        assert scripts[n.executable].split(":")[0] in (n.module, f"{n.module}.node")
+    written: dict[str, Any] = {}
+
+    class Written(Exception):
+        pass
+
+    def capture(path: Path, cfg: Any, node_params: dict[str, Any]) -> Path:
+        written.update(cfg=cfg, params=node_params)
+        raise Written   # stop before any process starts
+
+    monkeypatch.setattr(launch, "write_params", capture)
+    monkeypatch.setattr(launch.tempfile, "tempdir", str(tmp_path))
+    cfg = load_config()
+    with pytest.raises(Written):
+        launch.run_ros_mission(cfg, governor="cikan", seed=3, bag=tmp_path / "bag")
+    assert written["cfg"] == cfg
+    assert peers_as_set(written["params"]) == peers_as_set(
+        graph_spec.node_parameters(governor="cikan", seed=3, bag=(tmp_path / "bag").resolve()))
