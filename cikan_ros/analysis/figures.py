@@ -71,9 +71,10 @@ def _style(gov: str) -> dict:
     """Line style of a governor; ``NAME@paper`` (Algorithm 1) keeps its family's colour, dotted
     thin, and ``NAME-prev`` dash-dotted."""
     from ..governor import split_rule
+    from .table import family_of
 
     base, rule = split_rule(gov)
-    family = base.removesuffix("-prev")
+    family = family_of(base)
     style = dict(STYLES.get(family, dict(color="tab:purple", linestyle="-.")))
     if rule == "paper":
         style.update(linestyle=(0, (1, 1)), alpha=0.7)
@@ -84,9 +85,10 @@ def _style(gov: str) -> dict:
 
 def _label(gov: str) -> str:
     from ..governor import split_rule
+    from .table import family_of
 
     base, rule = split_rule(gov)
-    family = base.removesuffix("-prev")
+    family = family_of(base)
     label = LABELS.get(family, family) + (" (τ_{k-1} input)" if base != family else "")
     return label + (" (Alg. 1)" if rule == "paper" else "")
 

@@ -34,18 +34,18 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .errors import ModelFileError
-from .features import FEATURE_SETS, N_FEATURES, n_features
+from .features import FEATURE_SETS, n_features
 
 FAMILIES = ("cikan", "grbf", "rswaf", "relu", "gelu")
 KAN_FAMILIES = ("cikan", "grbf", "rswaf")
 #: Buffers every model file carries (float64): feature and target normalisation.
-NORM_TENSORS = {"feature_mean": (N_FEATURES,), "feature_std": (N_FEATURES,),
-                "target_mean": (1,), "target_std": (1,)}
+NORM_TENSORS = ("feature_mean", "feature_std", "target_mean", "target_std")
 
 
 def norm_tensor_shapes(n_in: int) -> dict[str, tuple[int, ...]]:
     """Shapes of the normalisation buffers of a network with ``n_in`` inputs."""
-    return {"feature_mean": (n_in,), "feature_std": (n_in,), "target_mean": (1,), "target_std": (1,)}
+    return dict(zip(NORM_TENSORS, ((n_in,), (n_in,), (1,), (1,))))
+
 LAYERNORM_EPS = 1e-5
 
 
