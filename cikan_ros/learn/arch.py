@@ -46,6 +46,7 @@ def norm_tensor_shapes(n_in: int) -> dict[str, tuple[int, ...]]:
     """Shapes of the normalisation buffers of a network with ``n_in`` inputs."""
     return dict(zip(NORM_TENSORS, ((n_in,), (n_in,), (1,), (1,))))
 
+
 LAYERNORM_EPS = 1e-5
 
 
