@@ -183,6 +183,7 @@ class LearnedConfig:
     """Update rule of the learned governors (SPEC §8): which rule, and the keep rule's settings."""
 
     algorithm: str = "keep"
+    ladder: tuple[float, ...] = (0.08, 0.03, 0.0)
     min_step_s: float = 1e-3
     fallback_budget: int = 1
     probe_every: int = 3
@@ -191,6 +192,10 @@ class LearnedConfig:
     def __post_init__(self) -> None:
         _check(self.algorithm in LEARNED_ALGORITHMS, "learned.algorithm", self.algorithm,
                f"must be one of {LEARNED_ALGORITHMS}")
+        object.__setattr__(self, "ladder", tuple(float(s) for s in self.ladder))
+        _check(1 <= len(self.ladder) <= 8 and all(-1.0 <= s < 1.0 for s in self.ladder)
+               and all(a > b for a, b in zip(self.ladder, self.ladder[1:])), "learned.ladder",
+               list(self.ladder), "must be 1 to 8 numbers in [-1, 1), strictly decreasing")
         _check(math.isfinite(self.min_step_s) and self.min_step_s >= 0, "learned.min_step_s",
                self.min_step_s, "must be >= 0")
         for name in ("fallback_budget", "probe_budget"):

@@ -156,6 +156,7 @@ def warm_up(governor: Governor, x_d: ArrayLike, x_c: ArrayLike, t: float = 0.0) 
     # Every kernel entry point a decision may take (the update itself may take only one path).
     pred.verify(x_d, t1, tau0)
     pred.bisect(x_d, t1, tau0, 0.0, budget=1)
+    pred.first_feasible(x_d, t1, [0.0], tau0, 1)
     pred.optimal_shift(x_d, t1, tau0)
     governor.update(x_d, x_c, t1, tau0)
     gc.collect()

@@ -171,6 +171,27 @@ def bisect_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, x0: ND
 
 
 @nb.njit(cache=True)
+def first_feasible_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, x0: NDArray,
+                          t_k: float, cands_ns: NDArray, lo_ns: int, budget: int, tol_ns: int,
+                          chief: NDArray, chief_t0: float) -> tuple[int, int, int]:
+    """Verify the candidates ``cands_ns`` (integer ns, in the order given) until one passes; if
+    none does, bisect on [lo, last candidate] with at most ``budget`` calls (0: none).
+
+    Returns (tau_ns, index of the candidate that passed or -1, Verify calls); with -1, tau_ns
+    is the bisection's verified lower end (``lo_ns`` itself when nothing passed). One compiled
+    call for a learned update's whole search."""
+    n = cands_ns.shape[0]
+    for i in range(n):
+        if verify_kernel(orb, table, cp, tp, x0, t_k, cands_ns[i] / 1e9, chief, chief_t0):
+            return cands_ns[i], i, i + 1
+    if budget == 0 or n == 0:
+        return lo_ns, -1, n
+    tau, _, calls = bisect_kernel(orb, table, cp, tp, x0, t_k, lo_ns, cands_ns[n - 1], tol_ns,
+                                  chief, chief_t0, budget)
+    return tau, -1, n + calls
+
+
+@nb.njit(cache=True)
 def conventional_update_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, x0: NDArray,
                                t_k: float, tau_prev_ns: int, tol_ns: int, chief: NDArray,
                                chief_t0: float) -> tuple[int, int]:
@@ -321,6 +342,23 @@ class Predictor:
         """
         lo_s, _, calls = self.bisect_bracket(x_d, t, lo, hi, cache, budget)
         return lo_s, calls
+
+    def first_feasible(self, x_d: ArrayLike, t: float, candidates: NDArray, lo: float, budget: int,
+                       cache: ChiefCache | None = None) -> tuple[float, int, int]:
+        """The first of ``candidates`` (s, each in [lo, 0], on the nanosecond grid) that passes
+        Verify, else the verified lower end of a bisection on [lo, last candidate] with at most
+        ``budget`` calls (lo itself with 0): (tau, index of the candidate or -1, Verify calls)."""
+        x, t = self._state(x_d, t)
+        lo = self._shift(lo, "lo")
+        cands = np.array([to_ns(self._shift(c, "candidate")) for c in candidates], dtype=np.int64)
+        lo_ns = to_ns(lo)
+        if cands.size and cands.min() < lo_ns:
+            raise StateError(f"candidates must be >= lo = {lo} s")
+        c = self._cache(t, cache)
+        tau_ns, index, calls = first_feasible_kernel(
+            self.orbit.params, self.gains, self.cparams, self.tparams, x, t, cands, lo_ns,
+            int(budget), self.tol_ns, c.rows, c.t0)
+        return ns_to_seconds(tau_ns), int(index), int(calls)
 
     def bisect_bracket(self, x_d: ArrayLike, t: float, lo: float, hi: float,
                        cache: ChiefCache | None = None, budget: int | None = None

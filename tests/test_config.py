@@ -37,6 +37,10 @@ def test_flat_round_trip():
     ("mission.duration_s", -1.0, "mission.duration_s"),
     ("mission.plant_substeps", "ten", "integer"),
     ("orbit.epoch_utc", "yesterday", "ISO 8601"),
+    ("learned.ladder", [0.0, 0.03], "strictly decreasing"),
+    ("learned.ladder", [1.0, 0.0], "learned.ladder"),
+    ("learned.ladder", [], "learned.ladder"),
+    ("learned.probe_every", 0, "learned.probe_every"),
 ])
 def test_invalid_values_are_named(name, value, match):
     with pytest.raises(ConfigError, match=match):

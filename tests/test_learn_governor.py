@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 
+from cikan_ros.errors import StateError
 from cikan_ros.governor import (PATH_BISECT, PATH_KEEP, PATH_NN, PATH_NN_BISECT, PATH_PROBE,
                                 PATH_VERIFY_ZERO, PATH_ZERO, update_index)
 from cikan_ros.learn.arch import Arch, NumpyNet
@@ -176,14 +177,20 @@ def test_decisions_follow_the_keep_rule(predictor) -> None:
             k = update_index(t, predictor.config.tsg.update_period_s)
             scheduled = k % lc.probe_every == 0
             b = lc.probe_budget if scheduled else lc.fallback_budget
-            if tau_prev + lc.min_step_s <= tau_c <= 0:
-                if predictor.verify(x_d, t, tau_c):
-                    tau, path, calls = tau_c, PATH_NN, 1
-                elif b == 0:
-                    tau, path, calls = tau_prev, PATH_KEEP, 1
-                else:
-                    tau, c = predictor.bisect(x_d, t, tau_prev, tau_c, budget=b)
-                    path, calls = PATH_NN_BISECT, 1 + c
+            # the ladder: c_i = tau_c (1 - s_i), kept when in [tau_prev + delta, 0] and below the last
+            cands: list[float] = []
+            for s in lc.ladder:
+                c = quantise_shift(tau_c * (1.0 - s))
+                if tau_prev + lc.min_step_s <= c <= 0 and (not cands or c < cands[-1]):
+                    cands.append(c)
+            passed = [c for c in cands if predictor.verify(x_d, t, c)]
+            if passed:
+                tau, path, calls = passed[0], PATH_NN, cands.index(passed[0]) + 1
+            elif cands and b == 0:
+                tau, path, calls = tau_prev, PATH_KEEP, len(cands)
+            elif cands:
+                tau, c = predictor.bisect(x_d, t, tau_prev, cands[-1], budget=b)
+                path, calls = PATH_NN_BISECT, len(cands) + c
             elif not scheduled:
                 tau, path, calls = tau_prev, PATH_KEEP, 0
             else:
@@ -197,7 +204,7 @@ def test_decisions_follow_the_keep_rule(predictor) -> None:
             assert (rec.k, rec.tau_prev) == (k, tau_prev)
             # Safety: the answer passed Verify or is tau_prev. Cost: bounded Verify calls.
             assert rec.tau_s == tau_prev or predictor.verify(x_d, t, rec.tau_s)
-            assert rec.verify_calls <= 1 + max(lc.fallback_budget, lc.probe_budget) + 1
+            assert rec.verify_calls <= len(lc.ladder) + max(lc.fallback_budget, lc.probe_budget) + 1
             seen.add(path)
     assert {PATH_NN, PATH_KEEP} <= seen
 
@@ -215,6 +222,29 @@ def test_budgeted_bisection_returns_its_verified_lower_end(predictor) -> None:
         assert tau_prev <= lo <= full_lo and full_hi <= hi <= 0.0
         assert lo == tau_prev or predictor.verify(x_d, t, lo)
         assert not predictor.verify(x_d, t, hi) or hi == 0.0
+
+
+def test_first_feasible_equals_verify_in_order_then_the_budgeted_bisection(predictor) -> None:
+    """first_feasible(candidates, lo, B) = the first candidate Verify passes (index, index + 1
+    calls), else bisect(lo, last candidate, budget=B) with the candidates' calls added."""
+    for x_d, _, t, tau_prev in _update_states(predictor, 4):
+        star = predictor.optimal_shift(x_d, t, tau_prev)[0]
+        # above pi* (mostly infeasible), pi* itself, and between tau_prev and pi*
+        ladders = [[star / 4, star / 2], [star / 4, star], [star / 4, (star + tau_prev) / 2]]
+        for cands in ladders:
+            cands = [quantise_shift(c) for c in cands]
+            ok = [predictor.verify(x_d, t, c) for c in cands]
+            for budget in (0, 1, 2):
+                tau, index, calls = predictor.first_feasible(x_d, t, cands, tau_prev, budget)
+                if any(ok):
+                    i = ok.index(True)
+                    assert (tau, index, calls) == (cands[i], i, i + 1)
+                else:
+                    lo, c = predictor.bisect(x_d, t, tau_prev, cands[-1], budget=budget)
+                    assert (tau, index, calls) == (lo, -1, len(cands) + c)
+    assert predictor.first_feasible(x_d, t, [], tau_prev, 3) == (tau_prev, -1, 0)
+    with pytest.raises(StateError, match="candidates must be >= lo"):
+        predictor.first_feasible(x_d, t, [tau_prev - 1.0], tau_prev, 1)
 
 
 @pytest.mark.parametrize("case", ["random", "too-close-to-zero", "always-keep"])

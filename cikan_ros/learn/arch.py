@@ -376,6 +376,8 @@ class NumpyNet:
         grid = (arch.knots() if kind == BSPLINE else arch.centres()).astype(np.float32)
         h = arch.basis_width if kind in (GRBF, RSWAF) else 0.0
         self._args = (kind, *self._pack(t), grid.astype(np.float64), arch.order, float(h))
+        #: The arguments of :func:`network_forward` after z (for callers compiled with numba).
+        self.kernel_args = self._args
         # Compile (or load from numba's cache) here, at model load, not at the first update.
         network_forward(np.zeros((1, arch.n_in)), *self._args)
 

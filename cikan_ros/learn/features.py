@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 
+import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -62,33 +63,46 @@ def features(x_d: ArrayLike, x_c: ArrayLike, kind: str = "vnb", tau_prev: ArrayL
     raise ValueError(f"unknown feature set {kind!r}; known: {FEATURE_SETS}")
 
 
-def features_one(x_d: NDArray, x_c: NDArray, kind: str, out: NDArray, tau_prev: float = math.nan
-                 ) -> NDArray:
-    """Single-sample :func:`features` into ``out`` (n_features(kind),), with scalar arithmetic (no
-    temporaries of numpy's small-array overhead); equal to :func:`features` to rounding."""
-    r0, r1, r2, w0, w1, w2 = (float(x_c[0]), float(x_c[1]), float(x_c[2]),
-                              float(x_c[3]), float(x_c[4]), float(x_c[5]))
-    d = [float(x_d[i]) - float(x_c[i]) for i in range(6)]
-    if kind == "eci":
-        out[:6] = d
-    elif kind in ("vnb", "vnb-prev"):
-        nv = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
-        x0, x1, x2 = w0 / nv, w1 / nv, w2 / nv
-        y0, y1, y2 = r1 * x2 - r2 * x1, r2 * x0 - r0 * x2, r0 * x1 - r1 * x0
-        ny = math.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
-        y0, y1, y2 = y0 / ny, y1 / ny, y2 / ny
-        z0, z1, z2 = x1 * y2 - x2 * y1, x2 * y0 - x0 * y2, x0 * y1 - x1 * y0
-        for o in (0, 3):
-            a, b, c = d[o], d[o + 1], d[o + 2]
-            out[o] = x0 * a + x1 * b + x2 * c
-            out[o + 1] = y0 * a + y1 * b + y2 * c
-            out[o + 2] = z0 * a + z1 * b + z2 * c
+#: Feature-set codes of the compiled single-sample path (:func:`features_into`).
+FEATURE_CODES = {kind: code for code, kind in enumerate(FEATURE_SETS)}
+ECI, VNB, VNB_PREV = range(len(FEATURE_SETS))
+
+
+@nb.njit(cache=True)
+def features_into(x_d: NDArray, x_c: NDArray, code: int, tau_prev: float, out: NDArray) -> None:
+    """Single-sample :func:`features` of x_d, x_c (6,) [km, km/s] into ``out``
+    (n_features,), feature set by ``code`` (FEATURE_CODES), with scalar arithmetic: a governor
+    update pays no small-array overhead. Equal to :func:`features` to rounding."""
+    r0, r1, r2, w0, w1, w2 = x_c[0], x_c[1], x_c[2], x_c[3], x_c[4], x_c[5]
+    if code == ECI:
+        for i in range(6):
+            out[i] = x_d[i] - x_c[i]
     else:
-        raise ValueError(f"unknown feature set {kind!r}; known: {FEATURE_SETS}")
-    out[6:12] = (r0, r1, r2, w0, w1, w2)
-    if kind == "vnb-prev":
+        nv = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+        a0, a1, a2 = w0 / nv, w1 / nv, w2 / nv                    # x̂ along v_c
+        b0, b1, b2 = r1 * a2 - r2 * a1, r2 * a0 - r0 * a2, r0 * a1 - r1 * a0
+        nb_ = math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
+        b0, b1, b2 = b0 / nb_, b1 / nb_, b2 / nb_                  # ŷ = r_c × x̂, normalised
+        c0, c1, c2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0   # ẑ = x̂ × ŷ
+        for o in (0, 3):
+            d0, d1, d2 = x_d[o] - x_c[o], x_d[o + 1] - x_c[o + 1], x_d[o + 2] - x_c[o + 2]
+            out[o] = a0 * d0 + a1 * d1 + a2 * d2
+            out[o + 1] = b0 * d0 + b1 * d1 + b2 * d2
+            out[o + 2] = c0 * d0 + c1 * d1 + c2 * d2
+    for i in range(6):
+        out[6 + i] = x_c[i]
+    if code == VNB_PREV:
         # ln of a non-negative |τ_{k-1}|: -inf at 0 and NaN for τ > 0 make the proposal unusable.
         out[12] = math.log(-tau_prev) if tau_prev < 0.0 else (-math.inf if tau_prev == 0.0 else math.nan)
+
+
+def features_one(x_d: ArrayLike, x_c: ArrayLike, kind: str, out: NDArray, tau_prev: float = math.nan
+                 ) -> NDArray:
+    """Single-sample :func:`features` into ``out`` (n_features(kind),) (see :func:`features_into`)."""
+    if kind not in FEATURE_CODES:
+        raise ValueError(f"unknown feature set {kind!r}; known: {FEATURE_SETS}")
+    features_into(np.asarray(x_d, dtype=np.float64), np.asarray(x_c, dtype=np.float64),
+                  FEATURE_CODES[kind], float(tau_prev), out)
     return out
 
 
