@@ -183,7 +183,7 @@ class LearnedConfig:
     """Update rule of the learned governors (SPEC §8): which rule, and the keep rule's settings."""
 
     algorithm: str = "keep"
-    ladder: tuple[float, ...] = (0.08, 0.03, 0.0)
+    ladder: tuple[float, ...] = (0.08, 0.03, 0.0, -0.05)
     min_step_s: float = 1e-3
     fallback_budget: int = 1
     probe_every: int = 3

@@ -350,10 +350,11 @@ class Predictor:
         ``budget`` calls (lo itself with 0): (tau, index of the candidate or -1, Verify calls)."""
         x, t = self._state(x_d, t)
         lo = self._shift(lo, "lo")
-        cands = np.array([to_ns(self._shift(c, "candidate")) for c in candidates], dtype=np.int64)
+        ns = [to_ns(self._shift(c, "candidate")) for c in candidates]
         lo_ns = to_ns(lo)
-        if cands.size and cands.min() < lo_ns:
+        if ns and min(ns) < lo_ns:
             raise StateError(f"candidates must be >= lo = {lo} s")
+        cands = np.array(ns, dtype=np.int64)
         c = self._cache(t, cache)
         tau_ns, index, calls = first_feasible_kernel(
             self.orbit.params, self.gains, self.cparams, self.tparams, x, t, cands, lo_ns,

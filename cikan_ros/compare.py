@@ -1,0 +1,116 @@
+"""Closed-loop comparison of governors and configuration variants against the conventional TSG
+on the same Monte Carlo starts (how the keep rule's settings were chosen, docs/learned_update_rule.md).
+
+Each (variant, governor, seed) flies one mission from ``mission.sample_start(seed)``; the
+conventional TSG flies the same seeds under each variant's configuration. Per governor and
+variant: ΔV and time to τ = 0 as ratios of their sums over the runs to the conventional's
+(paired: same starts), success and violations, Verify calls per active update and the active
+speed-up (conventional CPU time per active update / the governor's, both summed over the runs;
+CPU time of the deciding thread). Missions are chaotic (SPEC §10): compare over many seeds, and
+choose settings on seeds other than the ones a table reports (Table 2 flies seeds 1-100).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from typing import Any, Iterable
+
+from .config import Config, config_from_flat
+from .errors import CikanError
+from .governor import Governor, make_governor, warm_up
+from .mission import nominal_start, run_mission, sample_start
+from .parallel import ordered_map
+
+_GOVERNORS: dict[tuple[str, str], Governor] = {}
+
+
+@dataclass(frozen=True)
+class Flight:
+    """One mission of a comparison: configuration (flat JSON), governor name, Monte Carlo seed."""
+
+    config_json: str
+    governor: str
+    seed: int
+
+
+def fly(task: Flight) -> dict[str, Any]:
+    """Fly one mission (governors cached and warmed up per process); its paired figures."""
+    key = (task.config_json, task.governor)
+    gov = _GOVERNORS.get(key)
+    if gov is None:
+        gov = _GOVERNORS[key] = make_governor(task.governor, config_from_flat(json.loads(task.config_json)))
+        warm_up(gov, nominal_start(gov.predictor), gov.predictor.orbit.state(0.0))
+    res = run_mission(gov, sample_start(gov.predictor, task.seed))
+    m = res.metrics()
+    active = [r for r in res.updates if r.active]
+    return {"delta_v_kmps": m["delta_v_kmps"], "t_tau_zero_s": m["t_tau_zero_s"],
+            "success": bool(m["success"]), "violations": int(m["violations"]),
+            "active_cpu_s": sum(r.cpu_s for r in active), "active_updates": len(active),
+            "active_verify_calls": sum(r.verify_calls for r in active)}
+
+
+def _conventional_key(cfg: Config) -> str:
+    """The configuration the conventional TSG flies (the learned.* settings do not change it)."""
+    return json.dumps({k: v for k, v in cfg.flat().items() if not k.startswith("learned.")},
+                      sort_keys=True)
+
+
+def compare(variants: dict[str, Config], governors: list[str], seeds: list[int], workers: int = 1,
+            dask_address: str | None = None) -> list[dict[str, Any]]:
+    """One row per (variant, governor): figures relative to the conventional TSG on ``seeds``."""
+    if not seeds:
+        raise CikanError("no seeds to fly")
+    conv_cfgs = {_conventional_key(c): c for c in variants.values()}
+    tasks = [Flight(json.dumps(c.flat(), sort_keys=True), "conventional", s)
+             for c in conv_cfgs.values() for s in seeds]
+    tasks += [Flight(json.dumps(c.flat(), sort_keys=True), g, s)
+              for c in variants.values() for g in governors for s in seeds]
+    runs = dict(zip(tasks, ordered_map(fly, tasks, workers, dask_address)))
+    rows = []
+    for label, cfg in variants.items():
+        conv_json = json.dumps(conv_cfgs[_conventional_key(cfg)].flat(), sort_keys=True)
+        conv = [runs[Flight(conv_json, "conventional", s)] for s in seeds]
+        for g in governors:
+            mine = [runs[Flight(json.dumps(cfg.flat(), sort_keys=True), g, s)] for s in seeds]
+            rows.append({"variant": label, "governor": g, "runs": len(seeds),
+                         **relative_figures(mine, conv)})
+    return rows
+
+
+def _total(runs: Iterable[dict[str, Any]], key: str) -> float:
+    return float(sum(r[key] for r in runs))
+
+
+def relative_figures(mine: list[dict[str, Any]], conv: list[dict[str, Any]]) -> dict[str, Any]:
+    """Paired figures of a governor's runs against the conventional TSG's on the same starts."""
+    both_zero = [(a, b) for a, b in zip(mine, conv)
+                 if a["t_tau_zero_s"] is not None and b["t_tau_zero_s"] is not None]
+    n_mine, n_conv = _total(mine, "active_updates"), _total(conv, "active_updates")
+    return {
+        "success": sum(r["success"] for r in mine),
+        "violations": sum(r["violations"] for r in mine),
+        "delta_v_ratio": _total(mine, "delta_v_kmps") / _total(conv, "delta_v_kmps"),
+        "t_tau_zero_ratio": (sum(a["t_tau_zero_s"] for a, _ in both_zero)
+                             / sum(b["t_tau_zero_s"] for _, b in both_zero)) if both_zero else None,
+        "verify_calls_mean": _total(mine, "active_verify_calls") / n_mine if n_mine else None,
+        "active_speedup": ((_total(conv, "active_cpu_s") / n_conv) / (_total(mine, "active_cpu_s") / n_mine))
+        if n_mine and n_conv else None,
+    }
+
+
+def markdown(rows: list[dict[str, Any]]) -> str:
+    """The rows of :func:`compare` as a Markdown table."""
+    def pct(r: float | None) -> str:
+        return "-" if r is None else f"{100 * (r - 1):+.1f} %"
+
+    out = ["| variant | governor | runs | ΔV vs conventional | t(τ=0) vs conventional | success | "
+           "violations | Verify calls / active update | active speed-up (CPU) |",
+           "|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        calls = "-" if r["verify_calls_mean"] is None else f"{r['verify_calls_mean']:.2f}"
+        speed = "-" if r["active_speedup"] is None else f"{r['active_speedup']:.2f}"
+        out.append(f"| {r['variant']} | {r['governor']} | {r['runs']} | {pct(r['delta_v_ratio'])} | "
+                   f"{pct(r['t_tau_zero_ratio'])} | {r['success']}/{r['runs']} | {r['violations']} | "
+                   f"{calls} | {speed} |")
+    return "\n".join(out)
