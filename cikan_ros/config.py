@@ -185,6 +185,7 @@ class LearnedConfig:
     algorithm: str = "keep"
     ladder: tuple[float, ...] = (0.08, 0.03, 0.0, -0.05)
     min_step_s: float = 1e-3
+    min_progress: float = 0.0
     fallback_budget: int = 1
     probe_every: int = 3
     probe_budget: int = 2
@@ -198,6 +199,8 @@ class LearnedConfig:
                list(self.ladder), "must be 1 to 8 numbers in [-1, 1), strictly decreasing")
         _check(math.isfinite(self.min_step_s) and self.min_step_s >= 0, "learned.min_step_s",
                self.min_step_s, "must be >= 0")
+        _check(math.isfinite(self.min_progress) and 0.0 <= self.min_progress < 1.0,
+               "learned.min_progress", self.min_progress, "must be in [0, 1)")
         for name in ("fallback_budget", "probe_budget"):
             v = getattr(self, name)
             _check(isinstance(v, int) and 0 <= v <= 64, f"learned.{name}", v,

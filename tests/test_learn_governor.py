@@ -155,8 +155,12 @@ def _update_states(predictor, n: int = 8) -> list[tuple]:
             for k in [int(round(r.k * predictor.config.tsg.update_period_s / predictor.config.control.period_s))]][:n]
 
 
-def test_decisions_follow_the_keep_rule(predictor) -> None:
-    """Replays the keep rule's pseudo-code (SPEC §8) with independent predictor calls."""
+@pytest.mark.parametrize("rho", [None, 0.05])
+def test_decisions_follow_the_keep_rule(predictor, rho: float | None) -> None:
+    """Replays the keep rule's pseudo-code (docs/learned_update_rule.md) with independent
+    predictor calls, under the default settings and with learned.min_progress = rho."""
+    if rho is not None:
+        predictor = Predictor.from_config(predictor.config.replace(**{"learned.min_progress": rho}))
     lc = predictor.config.learned
     assert lc.algorithm == "keep"
     snap = predictor.config.tsg.zero_snap_s
@@ -177,9 +181,10 @@ def test_decisions_follow_the_keep_rule(predictor) -> None:
             k = update_index(t, predictor.config.tsg.update_period_s)
             scheduled = k % lc.probe_every == 0
             b = lc.probe_budget if scheduled else lc.fallback_budget
-            # the ladder: c_i = tau_c (1 - s_i), kept when in [tau_prev + delta, 0] and below the last
+            # the ladder: c_i = tau_c (1 - s_i), kept when in [tau_prev + delta, 0] and below the
+            # last, if tau_c proposes at least rho |tau_prev| of progress
             cands: list[float] = []
-            for s in lc.ladder:
+            for s in (lc.ladder if tau_c >= tau_prev * (1.0 - lc.min_progress) else ()):
                 c = quantise_shift(tau_c * (1.0 - s))
                 if tau_prev + lc.min_step_s <= c <= 0 and (not cands or c < cands[-1]):
                     cands.append(c)

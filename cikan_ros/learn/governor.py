@@ -157,10 +157,11 @@ class LearnedGovernor:
 
     def candidates(self, tau_c: float, tau_prev: float) -> list[float]:
         """The keep rule's candidates c_i = τ_c (1 - s_i) (s), ladder order, those in
-        [τ_prev + δ, 0] only, without repeats; empty when τ_c is NaN."""
+        [τ_prev + δ, 0] only, without repeats; empty when τ_c is NaN or proposes less progress
+        than ρ |τ_prev| (τ_c < τ_prev (1 - ρ), ρ = learned.min_progress)."""
         lc = self.predictor.config.learned
         out: list[float] = []
-        if math.isnan(tau_c):
+        if math.isnan(tau_c) or tau_c < tau_prev * (1.0 - lc.min_progress):
             return out
         for s in lc.ladder:
             c = quantise_shift(tau_c * (1.0 - s))
