@@ -181,11 +181,13 @@ class Arch:
 # weight and bias (2, I); the edge weights (I·M, O), row i·M + m for input i and basis m (MLPs:
 # (I, O)); the second tensor, the SiLU base weights β (I, O) of B-spline KANs or the bias (1, O)
 # of MLPs. _block views a block as a C-contiguous matrix.
+# error_model="numpy": a float division by zero gives inf or NaN instead of raising, so divisions
+# carry no check that stops vectorisation (no division here has a zero divisor).
 
 BSPLINE, GRBF, RSWAF, RELU, GELU = range(len(FAMILIES))   # ``kind``: FAMILIES[kind]
 _SQRT1_2 = 1.0 / math.sqrt(2.0)
 
-_kernel = nb.njit(cache=True, inline="always")
+_kernel = nb.njit(cache=True, error_model="numpy", inline="always")
 
 
 @_kernel
@@ -363,7 +365,7 @@ def mlp_layer(x: NDArray, y: NDArray, n_i: int, n_o: int, params: NDArray, offse
             y[j] = v * 0.5 * (1.0 + math.erf(v * _SQRT1_2)) if kind == GELU else max(v, 0.0)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def network_forward(z: NDArray, kind: int, widths: NDArray, offsets: NDArray, params: NDArray,
                     grid: NDArray, order: int, h: float) -> NDArray:
     """Network output (before the target de-normalisation) of z-scored features z (B, n_in) ->
