@@ -176,11 +176,12 @@ class Arch:
 # radial_kan_layer, mlp_layer); a single sample is the same kernel on a (1, n_in) view. A layer
 # adds scaled rows of its weight matrices (rows, O) to its O outputs: contiguous and vectorised
 # across outputs, in a fixed order (no fastmath, no reassociation).
-# Layout (NumpyNet._pack): every tensor of a network once, row-major in one flat array, and per
-# layer l the start offsets ``offsets[l] = (norm, edge, second)`` (-1: none): the LayerNorm
-# weight and bias (2, I); the edge weights (I·M, O), row i·M + m for input i and basis m (MLPs:
-# (I, O)); the second tensor, the SiLU base weights β (I, O) of B-spline KANs or the bias (1, O)
-# of MLPs. _block views a block as a C-contiguous matrix.
+# Layout (NumpyNet._pack): every tensor of a network once, row-major in one flat array, each block
+# from a 64-byte boundary (aligned vector loads), and per layer l the start offsets
+# ``offsets[l] = (norm, edge, second)`` (-1: none): the LayerNorm weight and bias (2, I); the
+# edge weights (I·M, O), row i·M + m for input i and basis m (MLPs: (I, O)); the second tensor,
+# the SiLU base weights β (I, O) of B-spline KANs or the bias (1, O) of MLPs. _block views a
+# block as a C-contiguous matrix.
 # error_model="numpy": a float division by zero gives inf or NaN instead of raising, so divisions
 # carry no check that stops vectorisation (no division here has a zero divisor).
 
@@ -376,7 +377,12 @@ def network_forward(z: NDArray, kind: int, widths: NDArray, offsets: NDArray, pa
     n_max = widths.max()
     x = np.empty(n_max)
     y = np.empty(n_max)
-    phi = np.empty(order + 1 if kind == BSPLINE else n_max * grid.shape[0])
+    if kind == BSPLINE:
+        phi = np.empty(order + 1)
+    elif kind == GRBF or kind == RSWAF:
+        phi = np.empty(n_max * grid.shape[0])
+    else:
+        phi = np.empty(0)
     out = np.empty(z.shape[0])
     for b in range(z.shape[0]):
         for i in range(widths[0]):
@@ -394,6 +400,14 @@ def network_forward(z: NDArray, kind: int, widths: NDArray, offsets: NDArray, pa
             x, y = y, x
         out[b] = x[0]
     return out
+
+
+def _aligned_zeros(n: int, dtype: Any, align: int = 64) -> NDArray:
+    """Zeros (n,) of ``dtype`` whose data starts on an ``align``-byte boundary."""
+    itemsize = np.dtype(dtype).itemsize
+    buf = np.zeros(n * itemsize + align, dtype=np.uint8)
+    start = -buf.ctypes.data % align
+    return buf[start:start + n * itemsize].view(dtype)
 
 
 class NumpyNet:
@@ -418,33 +432,34 @@ class NumpyNet:
 
     def _pack(self, t: Mapping[str, NDArray]) -> tuple[NDArray, NDArray, NDArray]:
         """(widths, offsets, params) of :func:`network_forward`: every tensor once, row-major in
-        one flat float64 array."""
+        one flat float64 array, each block from a 64-byte boundary."""
         a = self.arch
-        blocks: list[NDArray] = []
-        offsets = np.full((a.layers, 3), -1, dtype=np.int64)
-        size = 0
-
-        def put(l: int, col: int, block: NDArray) -> None:   # block (rows, cols)
-            nonlocal size
-            offsets[l, col] = size
-            blocks.append(block.ravel())
-            size += block.size
-
+        blocks: dict[tuple[int, int], NDArray] = {}     # (layer, offsets column) -> block
         for l in range(a.layers):
             pre = f"layers.{l}."
             if a.layer_norm_on(l):
-                put(l, 0, np.stack([t[pre + "norm.weight"], t[pre + "norm.bias"]]))
+                blocks[l, 0] = np.stack([t[pre + "norm.weight"], t[pre + "norm.bias"]])
             if a.family == "cikan":
                 eff = t[pre + "spline_weight"] * t[pre + "spline_scaler"][..., None]
-                put(l, 1, eff.reshape(eff.shape[0], -1).T)           # (I·M, O)
-                put(l, 2, t[pre + "base_weight"].T)                  # (I, O)
+                blocks[l, 1] = eff.reshape(eff.shape[0], -1).T           # (I·M, O)
+                blocks[l, 2] = t[pre + "base_weight"].T                   # (I, O)
             elif a.is_kan:
                 coef = t[pre + "coef"]
-                put(l, 1, coef.reshape(coef.shape[0], -1).T)         # (I·M, O)
+                blocks[l, 1] = coef.reshape(coef.shape[0], -1).T          # (I·M, O)
             else:
-                put(l, 1, t[pre + "weight"].T)                       # (I, O)
-                put(l, 2, t[pre + "bias"][None, :])                  # (1, O)
-        return np.array(a.widths, dtype=np.int64), offsets, np.concatenate(blocks)
+                blocks[l, 1] = t[pre + "weight"].T                        # (I, O)
+                blocks[l, 2] = t[pre + "bias"][None, :]                   # (1, O)
+        dtype = np.float64
+        align = 64 // np.dtype(dtype).itemsize
+        offsets = np.full((a.layers, 3), -1, dtype=np.int64)
+        size = 0
+        for (l, col), block in blocks.items():
+            offsets[l, col] = size
+            size += -(-block.size // align) * align
+        params = _aligned_zeros(size, dtype)
+        for (l, col), block in blocks.items():
+            params[offsets[l, col]:offsets[l, col] + block.size] = block.ravel()
+        return np.array(a.widths, dtype=np.int64), offsets, params
 
     def normalise(self, feats: NDArray) -> NDArray:
         """z-score raw features (..., n_in) with the training statistics."""
