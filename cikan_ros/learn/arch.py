@@ -173,23 +173,62 @@ class Arch:
 # -- compiled inference forward --------------------------------------------------------------
 # One numba kernel, network_forward, runs a batch z (B, n_in) -> (B,) network outputs (before the
 # target de-normalisation) through one compiled layer per family (bspline_kan_layer,
-# radial_kan_layer, mlp_layer); a single sample is the same kernel on a (1, n_in) view. Layout
-# (NumpyNet._pack): every tensor of a network as rows of one float64 table (R, max width), and per
-# layer l the first rows ``rows[l] = (norm, edge, second)``: LayerNorm weight then bias (-1: none);
-# the edge weights, one row of O outputs per (input i, basis m) at i·M + m (MLPs: per input i);
-# the second tensor, SiLU base weights β (one row per input) of B-spline KANs or the bias row of
-# MLPs (-1: none). Every input and basis then adds a scaled row to the O outputs: contiguous and
-# vectorised across outputs without fastmath (no reassociation). (Rows, not offsets into a flat array: indexing a flat array by a
-# runtime offset costs a negative-index check per element and stops vectorisation.)
+# radial_kan_layer, mlp_layer); a single sample is the same kernel on a (1, n_in) view. A layer
+# adds scaled rows of its weight matrices (rows, O) to its O outputs: contiguous and vectorised
+# across outputs, in a fixed order (no fastmath, no reassociation).
+# Layout (NumpyNet._pack): every tensor of a network once, row-major in one flat array, each block
+# from a 64-byte boundary (aligned vector loads), and per layer l the start offsets
+# ``offsets[l] = (norm, edge, second)`` (-1: none): the LayerNorm weight and bias (2, I); the
+# edge weights (I·M, O), row i·M + m for input i and basis m (MLPs: (I, O)); the second tensor,
+# the SiLU base weights β (I, O) of B-spline KANs or the bias (1, O) of MLPs. _block views a
+# block as a C-contiguous matrix.
+# error_model="numpy": a float division by zero gives inf or NaN instead of raising, so divisions
+# carry no check that stops vectorisation (no division here has a zero divisor).
 
 BSPLINE, GRBF, RSWAF, RELU, GELU = range(len(FAMILIES))   # ``kind``: FAMILIES[kind]
 _SQRT1_2 = 1.0 / math.sqrt(2.0)
 
+_kernel = nb.njit(cache=True, error_model="numpy", inline="always")
 
-@nb.njit(cache=True, inline="always")
-def _layer_norm(x: NDArray, n: int, table: NDArray, r: int) -> None:
+
+@_kernel
+def _block(params: NDArray, start: int, n_rows: int, n_cols: int) -> NDArray:
+    """The (n_rows, n_cols) matrix stored row-major at params[start:]."""
+    return params[start:start + n_rows * n_cols].reshape(n_rows, n_cols)
+
+
+@_kernel
+def _add_row(y: NDArray, a: float, w: NDArray, r: int) -> None:
+    """y[:O] += a · w[r] (w (R, O))."""
+    for j in range(w.shape[1]):
+        y[j] += a * w[r, j]
+
+
+@_kernel
+def _add_rows(y: NDArray, a: NDArray, w: NDArray, r0: int, n: int) -> None:
+    """y[:O] += Σ_{t<n} a[t] w[r0 + t] (w (R, O)), term by term in t order as n calls of
+    _add_row would add them, but four rows per pass over y (a quarter of its loads and stores)."""
+    if w.shape[1] == 1:                     # a dot product: accumulate in a register
+        acc = y[0]
+        for t in range(n):
+            acc += a[t] * w[r0 + t, 0]
+        y[0] = acc
+        return
+    t = 0
+    while t + 4 <= n:
+        a0, a1, a2, a3 = a[t], a[t + 1], a[t + 2], a[t + 3]
+        w0, w1, w2, w3 = w[r0 + t], w[r0 + t + 1], w[r0 + t + 2], w[r0 + t + 3]
+        for j in range(w.shape[1]):
+            y[j] = (((y[j] + a0 * w0[j]) + a1 * w1[j]) + a2 * w2[j]) + a3 * w3[j]
+        t += 4
+    for t in range(t, n):
+        _add_row(y, a[t], w, r0 + t)
+
+
+@_kernel
+def _layer_norm(x: NDArray, n: int, wb: NDArray) -> None:
     """In place on x[:n]: (x - mean) / sqrt(var + eps) · weight + bias, biased variance (torch);
-    weight and bias in rows r, r + 1."""
+    weight and bias the rows of wb (2, n)."""
     mu = 0.0
     for i in range(n):
         mu += x[i]
@@ -200,17 +239,10 @@ def _layer_norm(x: NDArray, n: int, table: NDArray, r: int) -> None:
         var += d * d
     inv = 1.0 / np.sqrt(var / n + LAYERNORM_EPS)
     for i in range(n):
-        x[i] = (x[i] - mu) * inv * table[r, i] + table[r + 1, i]
+        x[i] = (x[i] - mu) * inv * wb[0, i] + wb[1, i]
 
 
-@nb.njit(cache=True, inline="always")
-def _add_row(y: NDArray, a: float, table: NDArray, r: int, n: int) -> None:
-    """y[:n] += a · table[r, :n]."""
-    for j in range(n):
-        y[j] += a * table[r, j]
-
-
-@nb.njit(cache=True, inline="always")
+@_kernel
 def bspline_span(x: float, knots: NDArray) -> int:
     """Knot span s with knots[s] <= x < knots[s+1] (half-open, as the torch ``cox_de_boor``);
     -1 when x is outside [t_0, t_last) or NaN (then every B-spline is zero)."""
@@ -225,7 +257,7 @@ def bspline_span(x: float, knots: NDArray) -> int:
     return s
 
 
-@nb.njit(cache=True, inline="always")
+@_kernel
 def cardinal_cubic_bases(x: float, s: int, knots: NDArray, phi: NDArray) -> None:
     """phi[r] = B_{s-3+r}(x), r = 0..3, cubic, as the torch ``cardinal_cubic``: N(u),
     u = (x - t_m)/Δ, s = |u - 2|, N = (relu(2 - s)³ - 4 relu(1 - s)³) / 6, Δ = t_1 - t_0.
@@ -243,7 +275,7 @@ def cardinal_cubic_bases(x: float, s: int, knots: NDArray, phi: NDArray) -> None
         phi[r] = (a * a * a - 4.0 * b * b * b) / 6.0
 
 
-@nb.njit(cache=True, inline="always")
+@_kernel
 def de_boor_bases(x: float, s: int, knots: NDArray, order: int, phi: NDArray) -> None:
     """phi[r] = B_{s-k+r}(x), r = 0..k (k = order), the k + 1 B-splines that can be non-zero on
     the span s, by the Cox-de Boor recursion restricted to that span:
@@ -263,18 +295,20 @@ def de_boor_bases(x: float, s: int, knots: NDArray, order: int, phi: NDArray) ->
             phi[r] = v
 
 
-@nb.njit(cache=True, inline="always")
-def bspline_kan_layer(x: NDArray, y: NDArray, n_i: int, n_o: int, table: NDArray, rows: NDArray,
-                      knots: NDArray, order: int, phi: NDArray) -> None:
+@_kernel
+def bspline_kan_layer(x: NDArray, y: NDArray, n_i: int, n_o: int, params: NDArray,
+                      offsets: NDArray, knots: NDArray, order: int, phi: NDArray) -> None:
     """y[:n_o] = Φ(x[:n_i]) of a B-spline KAN layer: y_j = Σ_i β_ji SiLU(x_i) + Σ_m α_ji c_jim
     B_m(x_i). Only the order + 1 bases of each input's knot span enter the sums (none outside the
     grid); cubic bases in the cardinal form of the torch module, other orders by the local
     Cox-de Boor recursion."""
     n_basis = knots.shape[0] - order - 1
+    edge = _block(params, offsets[1], n_i * n_basis, n_o)
+    base = _block(params, offsets[2], n_i, n_o)
     y[:n_o] = 0.0
     for i in range(n_i):
         xi = x[i]
-        _add_row(y, xi / (1.0 + np.exp(-xi)), table, rows[2] + i, n_o)
+        _add_row(y, xi / (1.0 + np.exp(-xi)), base, i)
         s = bspline_span(xi, knots)
         if s < 0:
             continue
@@ -285,10 +319,10 @@ def bspline_kan_layer(x: NDArray, y: NDArray, n_i: int, n_o: int, table: NDArray
         for r in range(order + 1):
             m = s - order + r
             if 0 <= m < n_basis:
-                _add_row(y, phi[r], table, rows[1] + i * n_basis + m, n_o)
+                _add_row(y, phi[r], edge, i * n_basis + m)
 
 
-@nb.njit(cache=True, inline="always")
+@_kernel
 def radial_bases(x: float, centres: NDArray, h: float, kind: int, phi: NDArray) -> None:
     """phi[m] = ψ_m(x) for the G centres, d = (x - c_m)/h: GRBF exp(-d²/2) (``kind`` = GRBF) or
     RSWAF 1 - tanh²(d) (``kind`` = RSWAF), evaluated as sech²(d) = 4e/(1 + e)², e = exp(-2|d|)
@@ -302,61 +336,78 @@ def radial_bases(x: float, centres: NDArray, h: float, kind: int, phi: NDArray) 
             phi[m] = 4.0 * e / ((1.0 + e) * (1.0 + e))
 
 
-@nb.njit(cache=True, inline="always")
-def radial_kan_layer(x: NDArray, y: NDArray, n_i: int, n_o: int, table: NDArray, rows: NDArray,
-                     centres: NDArray, h: float, kind: int, phi: NDArray) -> None:
-    """y[:n_o] = Φ(x[:n_i]) of a GRBF or RSWAF KAN layer: y_j = Σ_i Σ_m θ_jim ψ_m(x_i)."""
-    n_basis = centres.shape[0]
-    y[:n_o] = 0.0
+@_kernel
+def radial_kan_layer(x: NDArray, y: NDArray, n_i: int, n_o: int, params: NDArray,
+                     offsets: NDArray, centres: NDArray, h: float, kind: int,
+                     phi: NDArray) -> None:
+    """y[:n_o] = Φ(x[:n_i]) of a GRBF or RSWAF KAN layer: y_j = Σ_i Σ_m θ_jim ψ_m(x_i), the
+    bases of all inputs, phi[i·G + m] = ψ_m(x_i), times the edge weights (I·G, O)."""
+    n_c = centres.shape[0]
+    n = n_i * n_c
     for i in range(n_i):
-        radial_bases(x[i], centres, h, kind, phi)
-        for m in range(n_basis):
-            _add_row(y, phi[m], table, rows[1] + i * n_basis + m, n_o)
+        radial_bases(x[i], centres, h, kind, phi[i * n_c:(i + 1) * n_c])
+    y[:n_o] = 0.0
+    _add_rows(y, phi, _block(params, offsets[1], n, n_o), 0, n)
 
 
-@nb.njit(cache=True, inline="always")
-def mlp_layer(x: NDArray, y: NDArray, n_i: int, n_o: int, table: NDArray, rows: NDArray,
+@_kernel
+def mlp_layer(x: NDArray, y: NDArray, n_i: int, n_o: int, params: NDArray, offsets: NDArray,
               kind: int, hidden: bool) -> None:
     """y[:n_o] = act(W x[:n_i] + b), act = ReLU or GELU 0.5 v (1 + erf(v/√2)) on hidden layers,
     none on the output layer. Zero inputs (after a ReLU) are skipped."""
-    y[:n_o] = table[rows[2], :n_o]
+    w = _block(params, offsets[1], n_i, n_o)
+    y[:n_o] = _block(params, offsets[2], 1, n_o)[0]
     for i in range(n_i):
         if x[i] != 0.0:
-            _add_row(y, x[i], table, rows[1] + i, n_o)
+            _add_row(y, x[i], w, i)
     if hidden:
         for j in range(n_o):
             v = y[j]
             y[j] = v * 0.5 * (1.0 + math.erf(v * _SQRT1_2)) if kind == GELU else max(v, 0.0)
 
 
-@nb.njit(cache=True)
-def network_forward(z: NDArray, kind: int, widths: NDArray, rows: NDArray, table: NDArray,
+@nb.njit(cache=True, error_model="numpy")
+def network_forward(z: NDArray, kind: int, widths: NDArray, offsets: NDArray, params: NDArray,
                     grid: NDArray, order: int, h: float) -> NDArray:
     """Network output (before the target de-normalisation) of z-scored features z (B, n_in) ->
-    (B,): the layers of family ``kind`` in turn, a LayerNorm first where ``rows[l, 0] >= 0``.
-    ``grid``: the knots (B-spline KAN) or centres (radial KAN; unused by MLPs); ``order``: the
-    B-spline order; ``h``: the radial basis width."""
+    (B,): the layers of family ``kind`` in turn, a LayerNorm first where ``offsets[l, 0] >= 0``.
+    ``params``: the packed tensors; ``grid``: the knots (B-spline KAN) or centres (radial KAN;
+    unused by MLPs); ``order``: the B-spline order; ``h``: the radial basis width."""
     n_layers = widths.shape[0] - 1
-    x = np.empty(table.shape[1])
-    y = np.empty(table.shape[1])
-    phi = np.empty(order + 1 if kind == BSPLINE else grid.shape[0])
+    n_max = widths.max()
+    x = np.empty(n_max)
+    y = np.empty(n_max)
+    if kind == BSPLINE:
+        phi = np.empty(order + 1)
+    elif kind == GRBF or kind == RSWAF:
+        phi = np.empty(n_max * grid.shape[0])
+    else:
+        phi = np.empty(0)
     out = np.empty(z.shape[0])
     for b in range(z.shape[0]):
         for i in range(widths[0]):
             x[i] = z[b, i]
         for l in range(n_layers):
             n_i, n_o = widths[l], widths[l + 1]
-            if rows[l, 0] >= 0:
-                _layer_norm(x, n_i, table, rows[l, 0])
+            if offsets[l, 0] >= 0:
+                _layer_norm(x, n_i, _block(params, offsets[l, 0], 2, n_i))
             if kind == BSPLINE:
-                bspline_kan_layer(x, y, n_i, n_o, table, rows[l], grid, order, phi)
+                bspline_kan_layer(x, y, n_i, n_o, params, offsets[l], grid, order, phi)
             elif kind == GRBF or kind == RSWAF:
-                radial_kan_layer(x, y, n_i, n_o, table, rows[l], grid, h, kind, phi)
+                radial_kan_layer(x, y, n_i, n_o, params, offsets[l], grid, h, kind, phi)
             else:
-                mlp_layer(x, y, n_i, n_o, table, rows[l], kind, l < n_layers - 1)
+                mlp_layer(x, y, n_i, n_o, params, offsets[l], kind, l < n_layers - 1)
             x, y = y, x
         out[b] = x[0]
     return out
+
+
+def _aligned_zeros(n: int, dtype: Any, align: int = 64) -> NDArray:
+    """Zeros (n,) of ``dtype`` whose data starts on an ``align``-byte boundary."""
+    itemsize = np.dtype(dtype).itemsize
+    buf = np.zeros(n * itemsize + align, dtype=np.uint8)
+    start = -buf.ctypes.data % align
+    return buf[start:start + n * itemsize].view(dtype)
 
 
 class NumpyNet:
@@ -382,37 +433,35 @@ class NumpyNet:
         network_forward(np.zeros((1, arch.n_in)), *self._args)
 
     def _pack(self, t: Mapping[str, NDArray]) -> tuple[NDArray, NDArray, NDArray]:
-        """(widths, rows, table) of :func:`network_forward`: every tensor once, as rows of one
-        table (row-major (R, max width), zero-padded)."""
+        """(widths, offsets, params) of :func:`network_forward`: every tensor once, row-major in
+        one flat float64 array, each block from a 64-byte boundary."""
         a = self.arch
-        blocks: list[NDArray] = []
-        rows = np.full((a.layers, 3), -1, dtype=np.int64)
-        n_rows = 0
-
-        def put(l: int, col: int, block: NDArray) -> None:   # block (rows, <= max width)
-            nonlocal n_rows
-            rows[l, col] = n_rows
-            blocks.append(block)
-            n_rows += block.shape[0]
-
+        blocks: dict[tuple[int, int], NDArray] = {}     # (layer, offsets column) -> block
         for l in range(a.layers):
             pre = f"layers.{l}."
             if a.layer_norm_on(l):
-                put(l, 0, np.stack([t[pre + "norm.weight"], t[pre + "norm.bias"]]))
+                blocks[l, 0] = np.stack([t[pre + "norm.weight"], t[pre + "norm.bias"]])
             if a.family == "cikan":
                 eff = t[pre + "spline_weight"] * t[pre + "spline_scaler"][..., None]
-                put(l, 1, eff.reshape(eff.shape[0], -1).T)           # (I·M, O)
-                put(l, 2, t[pre + "base_weight"].T)                  # (I, O)
+                blocks[l, 1] = eff.reshape(eff.shape[0], -1).T           # (I·M, O)
+                blocks[l, 2] = t[pre + "base_weight"].T                   # (I, O)
             elif a.is_kan:
                 coef = t[pre + "coef"]
-                put(l, 1, coef.reshape(coef.shape[0], -1).T)         # (I·M, O)
+                blocks[l, 1] = coef.reshape(coef.shape[0], -1).T          # (I·M, O)
             else:
-                put(l, 1, t[pre + "weight"].T)                       # (I, O)
-                put(l, 2, t[pre + "bias"][None, :])                  # (1, O)
-        table = np.zeros((n_rows, max(a.widths)))
-        for r0, block in zip(np.cumsum([0] + [b.shape[0] for b in blocks]), blocks):
-            table[r0:r0 + block.shape[0], :block.shape[1]] = block
-        return np.array(a.widths, dtype=np.int64), rows, table
+                blocks[l, 1] = t[pre + "weight"].T                        # (I, O)
+                blocks[l, 2] = t[pre + "bias"][None, :]                   # (1, O)
+        dtype = np.float64
+        align = 64 // np.dtype(dtype).itemsize
+        offsets = np.full((a.layers, 3), -1, dtype=np.int64)
+        size = 0
+        for (l, col), block in blocks.items():
+            offsets[l, col] = size
+            size += -(-block.size // align) * align
+        params = _aligned_zeros(size, dtype)
+        for (l, col), block in blocks.items():
+            params[offsets[l, col]:offsets[l, col] + block.size] = block.ravel()
+        return np.array(a.widths, dtype=np.int64), offsets, params
 
     def normalise(self, feats: NDArray) -> NDArray:
         """z-score raw features (..., n_in) with the training statistics."""
