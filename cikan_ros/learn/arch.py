@@ -34,7 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .errors import ModelFileError
-from .features import FEATURE_SETS, n_features
+from .features import FEATURE_SETS, features_into, n_features
 
 FAMILIES = ("cikan", "grbf", "rswaf", "relu", "gelu")
 KAN_FAMILIES = ("cikan", "grbf", "rswaf")
@@ -408,6 +408,20 @@ def _aligned_zeros(n: int, dtype: Any, align: int = 64) -> NDArray:
     buf = np.zeros(n * itemsize + align, dtype=np.uint8)
     start = -buf.ctypes.data % align
     return buf[start:start + n * itemsize].view(dtype)
+
+
+@nb.njit(cache=True)
+def log_shift_kernel(x_d: NDArray, x_c: NDArray, code: int, tau_prev: float, mean: NDArray,
+                     inv_std: NDArray, target_mean: float, target_std: float, z: NDArray,
+                     net_args: tuple) -> float:
+    """NN(features(x_d, x_c, τ_{k-1})): ln|τ| (s) in one compiled call (features, z-score into
+    the (1, n_in) buffer z, network, target scale), so an update pays one dispatch. It lives
+    here, beside network_forward, because numba rebuilds a cached function only when its own
+    file changes: compiled elsewhere it could keep an old forward."""
+    features_into(x_d, x_c, code, tau_prev, z[0])
+    for i in range(z.shape[1]):
+        z[0, i] = (z[0, i] - mean[i]) * inv_std[i]
+    return target_mean + target_std * network_forward(z, *net_args)[0]
 
 
 class NumpyNet:

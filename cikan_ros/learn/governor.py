@@ -45,32 +45,19 @@ import math
 from pathlib import Path
 from typing import Iterable
 
-import numba as nb
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from ..governor import (PATH_BISECT, PATH_INITIAL, PATH_KEEP, PATH_NN, PATH_NN_BISECT, PATH_PROBE,
                         PATH_VERIFY_ZERO, PATH_ZERO, UpdateRecord, initial_update, make_record,
                         start_clock, update_index)
 from ..tsg import ChiefCache, Predictor, quantise_shift
-from .arch import NumpyNet, network_forward
-from .features import FEATURE_CODES, features_into
+from .arch import NumpyNet, log_shift_kernel
+from .features import FEATURE_CODES
 from .modelfile import LoadedModel, load_model
 
 #: ln|τ| above this (|τ| > ~1.4e17 s) is treated like a non-finite output: out of range.
 MAX_LOG_SHIFT = 40.0
-
-
-@nb.njit(cache=True)
-def log_shift_kernel(x_d: NDArray, x_c: NDArray, code: int, tau_prev: float, mean: NDArray,
-                     inv_std: NDArray, target_mean: float, target_std: float, z: NDArray,
-                     net_args: tuple) -> float:
-    """NN(features(x_d, x_c, τ_{k-1})): ln|τ| (s) in one compiled call (features, z-score into
-    the (1, n_in) buffer z, network, target scale), so an update pays one dispatch."""
-    features_into(x_d, x_c, code, tau_prev, z[0])
-    for i in range(z.shape[1]):
-        z[0, i] = (z[0, i] - mean[i]) * inv_std[i]
-    return target_mean + target_std * network_forward(z, *net_args)[0]
 
 
 class LearnedGovernor:
