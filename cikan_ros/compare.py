@@ -61,18 +61,19 @@ def compare(variants: dict[str, Config], governors: list[str], seeds: list[int],
     """One row per (variant, governor): figures relative to the conventional TSG on ``seeds``."""
     if not seeds:
         raise CikanError("no seeds to fly")
-    conv_cfgs = {_conventional_key(c): c for c in variants.values()}
-    tasks = [Flight(json.dumps(c.flat(), sort_keys=True), "conventional", s)
-             for c in conv_cfgs.values() for s in seeds]
-    tasks += [Flight(json.dumps(c.flat(), sort_keys=True), g, s)
-              for c in variants.values() for g in governors for s in seeds]
+    cfg_json = {label: json.dumps(c.flat(), sort_keys=True) for label, c in variants.items()}
+    # The conventional flies once per distinct non-learned configuration, under its first variant's.
+    conv_json: dict[str, str] = {}
+    for label, c in variants.items():
+        conv_json.setdefault(_conventional_key(c), cfg_json[label])
+    tasks = [Flight(j, "conventional", s) for j in conv_json.values() for s in seeds]
+    tasks += [Flight(cfg_json[label], g, s) for label in variants for g in governors for s in seeds]
     runs = dict(zip(tasks, ordered_map(fly, tasks, workers, dask_address)))
     rows = []
-    for label, cfg in variants.items():
-        conv_json = json.dumps(conv_cfgs[_conventional_key(cfg)].flat(), sort_keys=True)
-        conv = [runs[Flight(conv_json, "conventional", s)] for s in seeds]
+    for label, c in variants.items():
+        conv = [runs[Flight(conv_json[_conventional_key(c)], "conventional", s)] for s in seeds]
         for g in governors:
-            mine = [runs[Flight(json.dumps(cfg.flat(), sort_keys=True), g, s)] for s in seeds]
+            mine = [runs[Flight(cfg_json[label], g, s)] for s in seeds]
             rows.append({"variant": label, "governor": g, "runs": len(seeds),
                          **relative_figures(mine, conv)})
     return rows

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Sequence
 
 import numba as nb
 import numpy as np
@@ -343,8 +344,8 @@ class Predictor:
         lo_s, _, calls = self.bisect_bracket(x_d, t, lo, hi, cache, budget)
         return lo_s, calls
 
-    def first_feasible(self, x_d: ArrayLike, t: float, candidates: NDArray, lo: float, budget: int,
-                       cache: ChiefCache | None = None) -> tuple[float, int, int]:
+    def first_feasible(self, x_d: ArrayLike, t: float, candidates: Sequence[float], lo: float,
+                       budget: int, cache: ChiefCache | None = None) -> tuple[float, int, int]:
         """The first of ``candidates`` (s, each in [lo, 0], on the nanosecond grid) that passes
         Verify, else the verified lower end of a bisection on [lo, last candidate] with at most
         ``budget`` calls (lo itself with 0): (tau, index of the candidate or -1, Verify calls)."""

@@ -10,7 +10,8 @@ learned.ladder, S = learned.probe_every, B = learned.fallback_budget, B_p = lear
 the update is *scheduled* when k % S == 0; bisect_b = bisection that stops after b Verify calls
 and returns its verified lower end, b = 0 meaning τ_prev). The candidates are the proposal made
 more optimistic by each rung, c_i = τ_c (1 - s_i) on the nanosecond grid, and C = those with
-τ_prev + δ <= c_i <= 0, in ladder order (closest to 0 first)::
+τ_prev + δ <= c_i <= 0, in ladder order (closest to 0 first); C is empty when τ_c moves τ by less
+than ρ |τ_prev| (ρ = learned.min_progress)::
 
   C not empty (the ladder proposes progress):
       Verify(c_1), Verify(c_2), ... -> the first c_i that passes                    [path "nn"]
@@ -20,10 +21,10 @@ more optimistic by each rung, c_i = τ_c (1 - s_i) on the nanosecond grid, and C
       not scheduled               -> τ_prev, no prediction                          [path "keep"]
       scheduled                   -> bisect_{B_p}(lo = τ_prev, hi = 0)              [path "probe"]
 
-The ladder exists because a failed Verify is cheap (it stops at the first violation; measured
-~50 µs against ~180 µs for a feasible one) and the networks' proposals are biased low: trying
-an optimistic candidate first keeps τ near π*, and with it the time to τ = 0 and the ΔV, at
-less cost than a search. ``ladder: [0]`` is the plain proposal.
+The ladder exists because a failed Verify is cheap (it stops at the first violation) and the
+networks' proposals are biased low: trying an optimistic candidate first keeps τ near π*, and
+with it the time to τ = 0 and the ΔV, at less cost than a search (docs/learned_update_rule.md).
+``ladder: [0]`` is the plain proposal.
 
 ``paper`` (the paper's Algorithm 1)::
 
