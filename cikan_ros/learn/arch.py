@@ -181,7 +181,9 @@ class Arch:
 # ``offsets[l] = (norm, edge, second)`` (-1: none): the LayerNorm weight and bias (2, I); the
 # edge weights (I·M, O), row i·M + m for input i and basis m (MLPs: (I, O)); the second tensor,
 # the SiLU base weights β (I, O) of B-spline KANs or the bias (1, O) of MLPs. _block views a
-# block as a C-contiguous matrix.
+# block as a C-contiguous matrix. Trained weights are float32 values: the array is then float32
+# (half the memory traffic, the bottleneck of the radial KANs' sums) and every product widens
+# them exactly, so the arithmetic is float64 on the same values.
 # error_model="numpy": a float division by zero gives inf or NaN instead of raising, so divisions
 # carry no check that stops vectorisation (no division here has a zero divisor).
 
@@ -371,8 +373,9 @@ def network_forward(z: NDArray, kind: int, widths: NDArray, offsets: NDArray, pa
                     grid: NDArray, order: int, h: float) -> NDArray:
     """Network output (before the target de-normalisation) of z-scored features z (B, n_in) ->
     (B,): the layers of family ``kind`` in turn, a LayerNorm first where ``offsets[l, 0] >= 0``.
-    ``params``: the packed tensors; ``grid``: the knots (B-spline KAN) or centres (radial KAN;
-    unused by MLPs); ``order``: the B-spline order; ``h``: the radial basis width."""
+    ``params``: the packed tensors (float32 or float64); ``grid``: the knots (B-spline KAN) or
+    centres (radial KAN; unused by MLPs); ``order``: the B-spline order; ``h``: the radial basis
+    width."""
     n_layers = widths.shape[0] - 1
     n_max = widths.max()
     x = np.empty(n_max)
@@ -434,7 +437,8 @@ class NumpyNet:
 
     def _pack(self, t: Mapping[str, NDArray]) -> tuple[NDArray, NDArray, NDArray]:
         """(widths, offsets, params) of :func:`network_forward`: every tensor once, row-major in
-        one flat float64 array, each block from a 64-byte boundary."""
+        one flat array, each block from a 64-byte boundary; float32 when every value is a float32
+        value (exact: trained weights; B-spline KANs pack products α·c, float64)."""
         a = self.arch
         blocks: dict[tuple[int, int], NDArray] = {}     # (layer, offsets column) -> block
         for l in range(a.layers):
@@ -451,7 +455,8 @@ class NumpyNet:
             else:
                 blocks[l, 1] = t[pre + "weight"].T                        # (I, O)
                 blocks[l, 2] = t[pre + "bias"][None, :]                   # (1, O)
-        dtype = np.float64
+        exact32 = all(np.array_equal(b.astype(np.float32), b) for b in blocks.values())
+        dtype = np.float32 if exact32 else np.float64
         align = 64 // np.dtype(dtype).itemsize
         offsets = np.full((a.layers, 3), -1, dtype=np.int64)
         size = 0
