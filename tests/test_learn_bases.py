@@ -12,8 +12,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.interpolate import BSpline
 
-from cikan_ros.learn.arch import (GRBF, RSWAF, Arch, bspline_span, cardinal_cubic_bases,
-                                  de_boor_bases, radial_bases)
+from cikan_ros.learn.arch import (GRBF, RSWAF, Arch, _uniform_grid, bspline_span,
+                                  cardinal_cubic_bases, de_boor_bases, radial_bases)
 from cikan_ros.learn.models import (GaussianRBFBasis, ReflectionalSwitchBasis,
                                     UniformBSplineBasis)
 
@@ -104,9 +104,57 @@ def test_span_bases_equal_torch_cox_de_boor_at_knots(order: int, grid: int, m: i
 def radial_table(x: np.ndarray, centres: np.ndarray, h: float, kind: int) -> np.ndarray:
     """(len(x), G) basis values from the kernels' ``radial_bases``."""
     out = np.empty((len(x), len(centres)))
-    for row, xi in enumerate(x):
-        radial_bases(xi, centres, h, kind, out[row])
+    radial_bases(np.asarray(x, dtype=np.float64), centres, h, kind, out)
     return out
+
+
+def direct_radial(x: np.ndarray, centres: np.ndarray, h: float, kind: int) -> np.ndarray:
+    """(len(x), G): the direct formulas, one exp per basis (the kernels' own fallback)."""
+    d = (x[:, None] - centres[None, :]) / h
+    if kind == GRBF:
+        return np.exp(-0.5 * d * d)
+    e = np.exp(-2.0 * np.abs(d))
+    return 4.0 * e / ((1.0 + e) * (1.0 + e))
+
+
+@settings(max_examples=400, deadline=None)
+@given(kind=st.sampled_from([GRBF, RSWAF]), grid=st.integers(2, 32),
+       grid_range=st.floats(0.5, 6.0), h_over_spacing=st.floats(0.05, 20.0),
+       u=st.lists(st.floats(-1.5, 1.5), min_size=1, max_size=8),
+       m=st.lists(st.integers(0, 31), max_size=4), ulps=st.integers(-2, 2))
+def test_radial_ladders_equal_the_direct_formula(kind: int, grid: int, grid_range: float,
+                                                  h_over_spacing: float, u: list[float],
+                                                  m: list[int], ulps: int) -> None:
+    """On the float32 centres of the networks (not exactly uniform) and for inputs across the
+    grid, around its edges, exactly on and a few ulps off centres, far outside, infinite and NaN,
+    the ladders give the direct formula to 1e-13 relative (NaN where it is NaN; below 1e-300 to
+    1e-300). The direct formula is itself only good to ~d² ulps, from the rounding of
+    d = (x - c)/h: the tolerance grows by that."""
+    arch = Arch("grbf" if kind == GRBF else "rswaf", 4, 2, grid=grid, grid_range=grid_range,
+                h=h_over_spacing * 2.0 * grid_range / (grid - 1))
+    c = arch.centres().astype(np.float32).astype(np.float64)
+    h = arch.basis_width
+    on = c[np.array(m, dtype=int) % grid]
+    far = [c[0] - h, c[-1] + 2 * h, -1e3, 1e3, -1e300, 1e300, -np.inf, np.inf, np.nan]
+    x = np.concatenate([np.array(u) * 1.2 * grid_range, on, on + ulps * np.spacing(on), far])
+    with np.errstate(all="ignore"):
+        fast, ref = radial_table(x, c, h, kind), direct_radial(x, c, h, kind)
+        d = np.clip(np.nan_to_num((x[:, None] - c[None, :]) / h), -1e100, 1e100)
+    np.testing.assert_array_equal(np.isnan(fast), np.isnan(ref))
+    fast, ref = np.nan_to_num(fast), np.nan_to_num(ref)
+    tol = (1e-13 + 4.0 * np.finfo(float).eps * d * d) * ref + 1e-300
+    assert np.all(np.abs(fast - ref) <= tol), np.max(np.abs(fast - ref) / (tol + 1e-300))
+
+
+@settings(max_examples=200, deadline=None)
+@given(kind=st.sampled_from([GRBF, RSWAF]), grid=st.integers(2, 32),
+       grid_range=st.floats(1.0, 5.0), h_over_spacing=st.floats(0.25, 4.0))
+def test_radial_ladders_hold_on_float32_centres(kind: int, grid: int, grid_range: float,
+                                                 h_over_spacing: float) -> None:
+    """The ladders (not the direct formula) run on the networks' grids, tuned h/Δ in [0.5, 2]
+    and beyond: their float32 centres are close enough to uniform."""
+    c = np.linspace(-grid_range, grid_range, grid).astype(np.float32).astype(np.float64)
+    assert _uniform_grid(c, h_over_spacing * 2.0 * grid_range / (grid - 1), kind)[2]
 
 
 def test_grbf_basis_matches_formula() -> None:

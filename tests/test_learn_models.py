@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from cikan_ros.governor import LEARNED_NAMES
-from cikan_ros.learn.arch import Arch, NumpyNet
+from cikan_ros.learn.arch import Arch, NumpyNet, network_forward
 from cikan_ros.learn.errors import ModelFileError
 from cikan_ros.learn.modelfile import CARD, WEIGHTS, load_model, save_model
 from cikan_ros.learn.models import TimeShiftNet
@@ -121,6 +121,20 @@ def test_shipped_model_compiled_forward_equals_torch(name: str) -> None:
     npn = NumpyNet(m.arch, m.tensors)
     np.testing.assert_allclose(npn.forward(z), torch_reference(net, z), rtol=1e-12, atol=1e-12)
     np.testing.assert_array_equal([npn.forward_one(r) for r in z[:20]], npn.forward(z[:20]))
+
+
+@pytest.mark.parametrize("a", ARCHS, ids=IDS)
+def test_float32_weights_packed_as_float32_change_no_bit(a: Arch) -> None:
+    """Weights that are all float32 values (trained ones) are packed as float32 and widened
+    exactly in the products: outputs bit for bit those of the same weights packed as float64.
+    B-spline KANs pack the products α·c, not float32 values: float64."""
+    npn = NumpyNet(a, {k: v.numpy() for k, v in _net(a).state_dict().items()})
+    kind, widths, offsets, params, *rest = npn._args
+    assert params.dtype == (np.float64 if a.family == "cikan" else np.float32)
+    z = probe_inputs(a)
+    np.testing.assert_array_equal(
+        network_forward(z, kind, widths, offsets, params, *rest),
+        network_forward(z, kind, widths, offsets, params.astype(np.float64), *rest))
 
 
 def test_forward_rejects_a_wrong_feature_count() -> None:

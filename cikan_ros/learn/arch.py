@@ -181,12 +181,17 @@ class Arch:
 # ``offsets[l] = (norm, edge, second)`` (-1: none): the LayerNorm weight and bias (2, I); the
 # edge weights (I·M, O), row i·M + m for input i and basis m (MLPs: (I, O)); the second tensor,
 # the SiLU base weights β (I, O) of B-spline KANs or the bias (1, O) of MLPs. _block views a
-# block as a C-contiguous matrix.
+# block as a C-contiguous matrix. Trained weights are float32 values: the array is then float32
+# (half the memory traffic, the bottleneck of the radial KANs' sums) and every product widens
+# them exactly, so the arithmetic is float64 on the same values.
 # error_model="numpy": a float division by zero gives inf or NaN instead of raising, so divisions
 # carry no check that stops vectorisation (no division here has a zero divisor).
 
 BSPLINE, GRBF, RSWAF, RELU, GELU = range(len(FAMILIES))   # ``kind``: FAMILIES[kind]
 _SQRT1_2 = 1.0 / math.sqrt(2.0)
+#: Bound on |t| of the factors exp(t) that carry the radial ladders onto the float32 centres
+#: (see below): _exp_small(t) is then exp(t) to t⁵/120 < 1e-17.
+_LADDER_TOL = 1e-3
 
 _kernel = nb.njit(cache=True, error_model="numpy", inline="always")
 
@@ -322,18 +327,137 @@ def bspline_kan_layer(x: NDArray, y: NDArray, n_i: int, n_o: int, params: NDArra
                 _add_row(y, phi[r], edge, i * n_basis + m)
 
 
+# The radial bases walk geometric ladders, 1-2 exps per input instead of G: from a centre c_a
+# next to x, on the uniform grid c_a + (m - a)Δ, Δ = (c_{G-1} - c_0)/(G - 1) rounded to float32,
+# δ = Δ/h, the ladder distances are d̃_m = d_a - (m - a)δ, d_a = (x - c_a)/h. The centres are
+# float32 values off the uniform grid c_0 + mΔ by hε_m (~1e-7 relative, or 0; ε_m is exact to
+# its last rounding, c_0 + mΔ being exact): factors exp(t), |t| tiny (_exp_small), carry the
+# ladder values onto d_m = d̃_m - (ε_m - ε_a). Inputs more than Δ outside the grid, NaN, and
+# grids the ladders do not hold on (_uniform_grid) take the direct formula.
+
 @_kernel
-def radial_bases(x: float, centres: NDArray, h: float, kind: int, phi: NDArray) -> None:
-    """phi[m] = ψ_m(x) for the G centres, d = (x - c_m)/h: GRBF exp(-d²/2) (``kind`` = GRBF) or
-    RSWAF 1 - tanh²(d) (``kind`` = RSWAF), evaluated as sech²(d) = 4e/(1 + e)², e = exp(-2|d|)
-    (one exp instead of a tanh; no cancellation in the tails)."""
-    for m in range(centres.shape[0]):
-        d = (x - centres[m]) / h
-        if kind == GRBF:
-            phi[m] = np.exp(-0.5 * d * d)
+def _uniform_grid(centres: NDArray, h: float, kind: int) -> tuple[float, float, bool]:
+    """(Δ, δ, ladder): the ladders' spacing (a float32, so that c_0 + mΔ is exact), δ = Δ/h, and
+    whether the ladders of family ``kind`` hold: every |t| <= _LADDER_TOL, with ε the largest
+    |ε_m|: GRBF |t| <= 2ε (min(Gδ, 40) + 1) (beyond |d̃| = 40 the bases underflow to 0 anyway),
+    RSWAF |t| <= 4ε; and δ <= 20 (neighbouring bases that hardly overlap; the ratios could
+    underflow)."""
+    n_c = centres.shape[0]
+    step = np.float64(np.float32((centres[n_c - 1] - centres[0]) / (n_c - 1)))
+    delta = step / h
+    eps = 0.0
+    for m in range(n_c):
+        eps = max(eps, abs(_offset(centres, m, step, h)))
+    t_max = 2.0 * eps * (min(n_c * delta, 40.0) + 1.0) if kind == GRBF else 4.0 * eps
+    return step, delta, t_max <= _LADDER_TOL and delta <= 20.0
+
+
+@_kernel
+def _offset(centres: NDArray, m: int, step: float, h: float) -> float:
+    """ε_m = (c_m - (c_0 + mΔ))/h."""
+    return (centres[m] - (centres[0] + m * step)) / h
+
+
+@_kernel
+def _exp_small(t: float) -> float:
+    """exp(t) for |t| <= _LADDER_TOL: 1 + t + t²/2 + t³/6 + t⁴/24."""
+    return 1.0 + t * (1.0 + t * (0.5 + t * (1.0 / 6.0 + t * (1.0 / 24.0))))
+
+
+@_kernel
+def gaussian_bases(x: NDArray, centres: NDArray, h: float, phi: NDArray) -> None:
+    """phi[i, m] = exp(-d²/2), d = (x_i - c_m)/h, for inputs x (n,) and the G centres, with 2
+    exps per input: from the nearest centre c_k, g_{k±n} = exp(-d̃_{k±n}²/2) = g_k (r^±)^n Q_n,
+    r^± = exp(±δ d_k - δ²/2), Q_n = exp(-δ² n(n - 1)/2) (all <= 1 where walked: far terms
+    underflow to 0 as they should, and rounding errors grow as n, not n²). Then
+    exp(-d_m²/2) = g_m exp(t), t = e (d̃_m - e/2), e = ε_m - ε_k."""
+    n_c = centres.shape[0]
+    c0, c_last = centres[0], centres[n_c - 1]
+    step, delta, ladder = _uniform_grid(centres, h, GRBF)
+    lad = np.empty((3, n_c))                        # ε_m, mδ, Q_m
+    for m in range(n_c):
+        lad[0, m] = _offset(centres, m, step, h)
+        lad[1, m] = m * delta
+        lad[2, m] = np.exp(-0.5 * delta * delta * m * (m - 1))
+    q, inv_step = np.exp(-delta * delta), 1.0 / step
+    for i in range(x.shape[0]):
+        xi = x[i]
+        row = phi[i]
+        if not (ladder and c0 - step <= xi <= c_last + step):
+            for m in range(n_c):
+                d = (xi - centres[m]) / h
+                row[m] = np.exp(-0.5 * d * d)
+            continue
+        k = min(max(int(np.rint((xi - c0) * inv_step)), 0), n_c - 1)
+        dk = (xi - centres[k]) / h
+        g = np.exp(-0.5 * dk * dk)
+        row[k] = g
+        r = np.exp(delta * dk - 0.5 * delta * delta)
+        v = g
+        for n in range(1, n_c - k):
+            v *= r
+            row[k + n] = v * lad[2, n]
+        r = q / r                                   # r^- = exp(-δ²)/r^+
+        v = g
+        for n in range(1, k + 1):
+            v *= r
+            row[k - n] = v * lad[2, n]
+        eps_k, dk0 = lad[0, k], dk + lad[1, k]                # d̃_m = dk0 - mδ
+        for m in range(n_c):
+            e = lad[0, m] - eps_k
+            row[m] *= _exp_small(e * (dk0 - lad[1, m] - 0.5 * e))
+
+
+@_kernel
+def sech2_bases(x: NDArray, centres: NDArray, h: float, phi: NDArray) -> None:
+    """phi[i, m] = 1 - tanh²(d) = sech²(d) = 4e/(1 + e)², e = exp(-2|d|), d = (x_i - c_m)/h, for
+    inputs x (n,) and the G centres (no cancellation in the tails), with 1 exp per input:
+    ẽ_m = exp(-2|d̃_m|) is geometric with ratio exp(-2δ) walking away from x on either side, d̃
+    from c_a, a = j the first ladder point above x (j = G: none, a = G - 1). Then
+    |d_m| = |d̃_m| ± (ε_m - ε_a) (+ above x) gives e_m = ẽ_m exp(∓2ε_m) exp(±2ε_a). (Where x is
+    within ~1e-7 of a centre that sign may be the other one: it gives 1/e_m, whose sech² is the
+    same.)"""
+    n_c = centres.shape[0]
+    c0, c_last = centres[0], centres[n_c - 1]
+    step, delta, ladder = _uniform_grid(centres, h, RSWAF)
+    lad = np.empty((2, n_c))                        # exp(-2ε_m), exp(2ε_m)
+    for m in range(n_c):
+        lad[0, m] = _exp_small(-2.0 * _offset(centres, m, step, h))
+        lad[1, m] = _exp_small(2.0 * _offset(centres, m, step, h))
+    q = np.exp(-2.0 * delta)
+    inv_step = 1.0 / step
+    for i in range(x.shape[0]):
+        xi = x[i]
+        row = phi[i]
+        if not (ladder and c0 - step <= xi <= c_last + step):
+            for m in range(n_c):
+                row[m] = np.exp(-2.0 * abs((xi - centres[m]) / h))
         else:
-            e = np.exp(-2.0 * abs(d))
-            phi[m] = 4.0 * e / ((1.0 + e) * (1.0 + e))
+            j = min(max(int(np.floor((xi - c0) * inv_step)) + 1, 0), n_c)
+            a = min(j, n_c - 1)
+            e = np.exp(2.0 * ((xi - centres[a]) / h - (j - a) * delta))   # ẽ_j, d̃_j <= 0
+            v = e * lad[1, a]
+            for m in range(j, n_c):
+                row[m] = v * lad[0, m]
+                v *= q
+            v = q / e * lad[0, a]
+            for m in range(j - 1, -1, -1):
+                row[m] = v * lad[1, m]
+                v *= q
+        for m in range(n_c):
+            e = row[m]
+            row[m] = 4.0 * e / ((1.0 + e) * (1.0 + e))
+
+
+@_kernel
+def radial_bases(x: NDArray, centres: NDArray, h: float, kind: int, phi: NDArray) -> None:
+    """phi[i, m] = ψ_m(x_i) for inputs x (n,), the G centres c_m and width h, d = (x - c_m)/h:
+    GRBF exp(-d²/2) (``kind`` = GRBF, gaussian_bases) or RSWAF 1 - tanh²(d) (``kind`` = RSWAF,
+    sech2_bases)."""
+    if kind == GRBF:
+        gaussian_bases(x, centres, h, phi)
+    else:
+        sech2_bases(x, centres, h, phi)
 
 
 @_kernel
@@ -344,8 +468,7 @@ def radial_kan_layer(x: NDArray, y: NDArray, n_i: int, n_o: int, params: NDArray
     bases of all inputs, phi[i·G + m] = ψ_m(x_i), times the edge weights (I·G, O)."""
     n_c = centres.shape[0]
     n = n_i * n_c
-    for i in range(n_i):
-        radial_bases(x[i], centres, h, kind, phi[i * n_c:(i + 1) * n_c])
+    radial_bases(x[:n_i], centres, h, kind, phi[:n].reshape(n_i, n_c))
     y[:n_o] = 0.0
     _add_rows(y, phi, _block(params, offsets[1], n, n_o), 0, n)
 
@@ -371,8 +494,9 @@ def network_forward(z: NDArray, kind: int, widths: NDArray, offsets: NDArray, pa
                     grid: NDArray, order: int, h: float) -> NDArray:
     """Network output (before the target de-normalisation) of z-scored features z (B, n_in) ->
     (B,): the layers of family ``kind`` in turn, a LayerNorm first where ``offsets[l, 0] >= 0``.
-    ``params``: the packed tensors; ``grid``: the knots (B-spline KAN) or centres (radial KAN;
-    unused by MLPs); ``order``: the B-spline order; ``h``: the radial basis width."""
+    ``params``: the packed tensors (float32 or float64); ``grid``: the knots (B-spline KAN) or
+    centres (radial KAN; unused by MLPs); ``order``: the B-spline order; ``h``: the radial basis
+    width."""
     n_layers = widths.shape[0] - 1
     n_max = widths.max()
     x = np.empty(n_max)
@@ -448,7 +572,8 @@ class NumpyNet:
 
     def _pack(self, t: Mapping[str, NDArray]) -> tuple[NDArray, NDArray, NDArray]:
         """(widths, offsets, params) of :func:`network_forward`: every tensor once, row-major in
-        one flat float64 array, each block from a 64-byte boundary."""
+        one flat array, each block from a 64-byte boundary; float32 when every value is a float32
+        value (exact: trained weights; B-spline KANs pack products α·c, float64)."""
         a = self.arch
         blocks: dict[tuple[int, int], NDArray] = {}     # (layer, offsets column) -> block
         for l in range(a.layers):
@@ -465,7 +590,8 @@ class NumpyNet:
             else:
                 blocks[l, 1] = t[pre + "weight"].T                        # (I, O)
                 blocks[l, 2] = t[pre + "bias"][None, :]                   # (1, O)
-        dtype = np.float64
+        exact32 = all(np.array_equal(b.astype(np.float32), b) for b in blocks.values())
+        dtype = np.float32 if exact32 else np.float64
         align = 64 // np.dtype(dtype).itemsize
         offsets = np.full((a.layers, 3), -1, dtype=np.int64)
         size = 0
