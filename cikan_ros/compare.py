@@ -16,6 +16,7 @@ import json
 from dataclasses import dataclass
 from typing import Any, Iterable
 
+from .analysis.paired import paired_ratio
 from .config import Config, config_from_flat
 from .errors import CikanError
 from .governor import Governor, make_governor, warm_up
@@ -88,10 +89,12 @@ def relative_figures(mine: list[dict[str, Any]], conv: list[dict[str, Any]]) -> 
     both_zero = [(a, b) for a, b in zip(mine, conv)
                  if a["t_tau_zero_s"] is not None and b["t_tau_zero_s"] is not None]
     n_mine, n_conv = _total(mine, "active_updates"), _total(conv, "active_updates")
+    dv = paired_ratio([a["delta_v_kmps"] for a in mine], [b["delta_v_kmps"] for b in conv])
     return {
         "success": sum(r["success"] for r in mine),
         "violations": sum(r["violations"] for r in mine),
-        "delta_v_ratio": _total(mine, "delta_v_kmps") / _total(conv, "delta_v_kmps"),
+        "delta_v_ratio": dv.ratio,
+        "delta_v_ratio_se": dv.se,
         "t_tau_zero_ratio": (sum(a["t_tau_zero_s"] for a, _ in both_zero)
                              / sum(b["t_tau_zero_s"] for _, b in both_zero)) if both_zero else None,
         "verify_calls_mean": _total(mine, "active_verify_calls") / n_mine if n_mine else None,
@@ -105,13 +108,17 @@ def markdown(rows: list[dict[str, Any]]) -> str:
     def pct(r: float | None) -> str:
         return "-" if r is None else f"{100 * (r - 1):+.1f} %"
 
-    out = ["| variant | governor | runs | ΔV vs conventional | t(τ=0) vs conventional | success | "
+    def pct_se(r: float, e: float | None) -> str:
+        return pct(r) if e is None else f"{100 * (r - 1):+.1f} ± {100 * e:.1f} %"
+
+    out = ["| variant | governor | runs | ΔV vs conventional (± SE) | t(τ=0) vs conventional | success | "
            "violations | Verify calls / active update | active speed-up (CPU) |",
            "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         calls = "-" if r["verify_calls_mean"] is None else f"{r['verify_calls_mean']:.2f}"
         speed = "-" if r["active_speedup"] is None else f"{r['active_speedup']:.2f}"
-        out.append(f"| {r['variant']} | {r['governor']} | {r['runs']} | {pct(r['delta_v_ratio'])} | "
+        out.append(f"| {r['variant']} | {r['governor']} | {r['runs']} | "
+                   f"{pct_se(r['delta_v_ratio'], r['delta_v_ratio_se'])} | "
                    f"{pct(r['t_tau_zero_ratio'])} | {r['success']}/{r['runs']} | {r['violations']} | "
                    f"{calls} | {speed} |")
     return "\n".join(out)

@@ -21,6 +21,8 @@ def test_relative_figures_are_ratios_of_sums_on_paired_starts() -> None:
     mine = [_run(1.5, 1100.0, 0.01, 50, 100), _run(2.5, 2000.0, 0.02, 150, 350, ok=False)]
     f = relative_figures(mine, conv)
     assert f["delta_v_ratio"] == pytest.approx(4.0 / 4.0)
+    # R = 1, e = (0.5, -0.5): SE = sqrt(2 · 0.5) / 4
+    assert f["delta_v_ratio_se"] == pytest.approx(0.25)
     assert f["t_tau_zero_ratio"] == pytest.approx(1100.0 / 1000.0)
     assert f["verify_calls_mean"] == pytest.approx(450 / 200)
     assert f["active_speedup"] == pytest.approx((0.40 / 300) / (0.03 / 200))

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from cikan_ros.analysis.report import write_report
-from cikan_ros.analysis.table import COLUMNS, build_table, to_csv, to_markdown
+from cikan_ros.analysis.paired import paired_ratio
+from cikan_ros.analysis.table import COLUMNS, _runs, build_table, to_csv, to_markdown
 from cikan_ros.montecarlo import run_campaign
 
 FIGURES = ("fig3a_relative_vnb", "fig3a_relative_vnb_zoom", "fig3b_tau", "fig3c_mean_tau",
@@ -46,14 +47,17 @@ def test_table_has_every_column_filled(campaign):
         assert conv[c] is None  # the conventional TSG has no network
     assert conv["speedup_mean"] == 1.0 and cikan["runs"] == 3
     assert 0.0 <= cikan["nn_accept_rate"] <= 1.0 and cikan["rmse_tau_s"] >= 0.0
+    dv = {g: [m["delta_v_kmps"] for m, _, _ in _runs(campaign / g)] for g in ("cikan", "conventional")}
+    assert cikan["delta_v_vs_conventional_se"] == paired_ratio(dv["cikan"], dv["conventional"]).se
     md, csv = to_markdown(rows), to_csv(rows)
     assert "*paper: CIKAN (128,5,17)*" in md and "| **cikan**" in md
+    assert f"± {100 * cikan['delta_v_vs_conventional_se']:.1f} %)" in md
     assert csv.splitlines()[0].split(",") == list(COLUMNS) and len(csv.splitlines()) == 3
 
 
 def test_rmse_is_zero_for_the_conventional_answers(campaign, cfg):
     """Sanity of the RMSE machinery: pi* at the conventional governor's own states is its answer."""
-    from cikan_ros.analysis.table import _runs, rmse_against_optimal
+    from cikan_ros.analysis.table import rmse_against_optimal
 
     rmse_all, rmse_active, _ = rmse_against_optimal(_runs(campaign / "conventional"))
     assert rmse_all == 0.0 and rmse_active == 0.0

@@ -25,6 +25,7 @@ from ..governor import PATH_NN, split_rule
 from ..mission import errors_against_optimal, rmse, update_states
 from ..montecarlo import load_run_arrays, summarise
 from ..tsg import Predictor
+from .paired import paired_ratio
 
 #: The paper's Table 2 (SPEC §9): complexity, L_train, L_val (x1e-3), RMSE s, time mean/worst s, dV km/s.
 PAPER = {
@@ -42,6 +43,7 @@ COLUMNS = ("model", "rule", "architecture", "trainable_params", "paper_complexit
            "loss_val_1e3", "rmse_tau_s", "rmse_tau_active_s", "update_ms_mean", "update_ms_max",
            "active_update_ms_mean", "active_update_ms_max", "speedup_mean", "speedup_worst",
            "active_speedup_mean", "active_speedup_worst", "delta_v_kmps_mean", "delta_v_vs_conventional",
+           "delta_v_vs_conventional_se",
            "t_tau_zero_s_mean", "t_tau_zero_vs_conventional", "successes", "runs", "violations",
            "nn_accept_rate")
 
@@ -112,6 +114,7 @@ def build_table(mc_dir: str | Path, with_rmse: bool = True) -> list[dict[str, An
                   key=order)
     rows = []
     conv: dict[str, Any] | None = None
+    conv_dv: dict[int, float] = {}
     for g in govs:
         runs = _runs(mc / g)
         s = summarise([m for m, _, _ in runs])
@@ -126,7 +129,12 @@ def build_table(mc_dir: str | Path, with_rmse: bool = True) -> list[dict[str, An
                    active_update_ms_max=s["active_update_cpu_ms_max"])
         if g == "conventional":
             conv = s
+            conv_dv = {int(m["seed"]): m["delta_v_kmps"] for m, _, _ in runs}
         else:
+            paired = [(m["delta_v_kmps"], conv_dv[int(m["seed"])]) for m, _, _ in runs
+                      if int(m["seed"]) in conv_dv]
+            if len(paired) >= 2:
+                row["delta_v_vs_conventional_se"] = paired_ratio(*zip(*paired)).se
             card = _card(base)
             if card is not None:
                 arch = card.get("architecture", {})
@@ -165,15 +173,18 @@ def _fmt(v: Any, spec: str) -> str:
 def to_markdown(rows: list[dict[str, Any]]) -> str:
     """Our Table 2 (the paper's all-updates timing, active-phase timing beside it), the paper's
     row under each family; learned rows name their update rule (keep: default, paper: the
-    paper's Algorithm 1). ΔV and t(τ=0) also relative to the conventional TSG of the campaign."""
+    paper's Algorithm 1). ΔV and t(τ=0) also relative to the conventional TSG of the campaign,
+    ΔV with the standard error of that paired ratio (``analysis.paired``)."""
     head = ("| model | rule | params (trainable) | complexity n²ℓ(G+3) | L_train, L_val ×1e-3 "
             "| RMSE τ (s) all / active | update ms mean / worst | speed-up mean / worst "
             "| active ms mean / worst | active speed-up mean / worst | ΔV (km/s) | t(τ=0) mean (s) "
             "| success | violations | NN accept |")
     lines = [head, "|" + "---|" * 15]
 
-    def rel(v: Any) -> str:
-        return "" if v is None or not math.isfinite(v) else f" ({v:+.1%})"
+    def rel(v: Any, se: Any = None) -> str:
+        if v is None or not math.isfinite(v):
+            return ""
+        return f" ({v:+.1%})" if se is None else f" ({100 * v:+.1f} ± {100 * se:.1f} %)"
 
     for i, r in enumerate(rows):
         g = r["model"]
@@ -187,7 +198,7 @@ def to_markdown(rows: list[dict[str, Any]]) -> str:
             f"| {_fmt(r['speedup_mean'], '.2f')} / {_fmt(r['speedup_worst'], '.2f')} "
             f"| {_fmt(r['active_update_ms_mean'], '.3f')} / {_fmt(r['active_update_ms_max'], '.2f')} "
             f"| {_fmt(r['active_speedup_mean'], '.2f')} / {_fmt(r['active_speedup_worst'], '.2f')} "
-            f"| {_fmt(r['delta_v_kmps_mean'], '.4f')}{rel(r['delta_v_vs_conventional']) if g != 'conventional' else ''} "
+            f"| {_fmt(r['delta_v_kmps_mean'], '.4f')}{rel(r['delta_v_vs_conventional'], r['delta_v_vs_conventional_se']) if g != 'conventional' else ''} "
             f"| {_fmt(r['t_tau_zero_s_mean'], '.0f')}{rel(r['t_tau_zero_vs_conventional']) if g != 'conventional' else ''} "
             f"| {r['successes']}/{r['runs']} | {r['violations']} | {_fmt(r['nn_accept_rate'], '.3f')} |")
         fam = family_of(base)
@@ -222,7 +233,8 @@ def summary(rows: list[dict[str, Any]]) -> str:
             f"active-phase speed-up {span('active_speedup_mean', '.2f', rs)}x mean and "
             f"{span('active_speedup_worst', '.2f', rs)}x worst; all-updates speed-up "
             f"{span('speedup_mean', '.2f', rs)}x mean and {span('speedup_worst', '.2f', rs)}x worst; "
-            f"ΔV {span('delta_v_vs_conventional', '+.1%', rs)} and mean time to τ = 0 "
+            f"ΔV {span('delta_v_vs_conventional', '+.1%', rs)} (paired standard errors "
+            f"{span('delta_v_vs_conventional_se', '.1%', rs)}) and mean time to τ = 0 "
             f"{span('t_tau_zero_vs_conventional', '+.1%', rs)} against the conventional TSG; "
             f"active-phase RMSE against π* {span('rmse_tau_active_s', '.3f', rs)} s.")
     return "\n".join(out) + "\n"
