@@ -32,7 +32,7 @@ results: $(STAMP)
 	$(BIN)/cikan report runs/paper --out docs/results --notes docs/results_notes.md \
 		--title "Results: the paper's Table 2 and Figures 3-4 reproduced, with the keep rule beside Algorithm 1"
 
-# The learned models at paper scale (`make -j2 models`, about 1.5 h on 2 cores): 1 M labels,
+# The learned models at paper scale (`make -j2 models`, about 2.5 h on 2 cores, 1 h of it the labels): 1 M labels,
 # a TPE study of 30 pruned trials per family on the tau_prev-aware inputs (vnb-prev), then per
 # family, with the best trial's settings on all training labels, the state-only network
 # (models/<family>, the paper's inputs; the default of both rules). The best RSWAF trial has a
@@ -43,7 +43,7 @@ FAMILIES   := cikan grbf rswaf relu gelu
 DATA       ?= runs/ds1m.parquet
 TUNE_DB    ?= sqlite:///runs/tune.sqlite3
 TUNE_ARGS  ?= --trials 30 --epochs 5 --max-train 30000 --trial-minutes 0.6 --seed 0
-TRAIN_ARGS ?= --epochs 12 --batch 1024 --patience 4 --max-minutes 11 --threads 1 --quiet
+TRAIN_ARGS ?= --epochs 30 --batch 1024 --patience 6 --max-minutes 30 --threads 1 --quiet
 ARCH_rswaf := --layers 4 --grid 15
 
 $(DATA): | $(STAMP)
