@@ -78,3 +78,29 @@ def test_cli_writes_the_same_labels(cfg, local, tmp_path, capsys) -> None:
     assert summary["labels"] == N and summary["labels_per_s"] > 0
     back, _ = read_parquet(out)
     pd.testing.assert_frame_equal(back, local[0])
+
+
+def test_on_policy_labels_are_pi_star_where_the_learned_governor_flew(cfg, predictor) -> None:
+    """``--governor cikan``: the learned governor's own mission (independently re-flown here),
+    each of its active updates labelled with pi* from its own tau_prev; the states and tau_prev
+    are its, not the conventional TSG's."""
+    from cikan_ros.governor import make_governor
+    from cikan_ros.learn.dataset import mission_plan
+    from cikan_ros.mission import run_mission, sample_start
+
+    spec = DatasetSpec(seed=5, val_fraction=0.3, test_fraction=0.3)
+    df, meta = generate(cfg, 40, spec, workers=1, progress=False, governor="cikan")
+    assert meta["governor"] == "cikan" and len(df) == 40 and (df["tau_star_s"] < 0).all()
+    first = df[df["mission"] == df["mission"].iloc[0]]
+    sigma, _, start_seed = mission_plan(spec, int(first["mission"].iloc[0]))
+    res = run_mission(make_governor("cikan", cfg, predictor), sample_start(predictor, start_seed, sigma))
+    flown = {s.k: s for s in res.update_states()}
+    differs = 0
+    for _, r in first.iterrows():
+        s = flown[int(r["update_k"])]
+        assert (s.tau_prev, s.t) == (r["tau_prev_s"], r["t_s"])
+        np.testing.assert_array_equal(s.x_d, r[list(XD_COLS)].to_numpy(dtype=float))
+        star, _ = predictor.optimal_shift(s.x_d, s.t, s.tau_prev)
+        assert star == r["tau_star_s"]
+        differs += s.tau != star  # the learned answer is not always pi*: labels are re-solved
+    assert differs > 0

@@ -175,3 +175,16 @@ def test_models_page_tables_come_from_cards_and_data(data_path: Path, tmp_path: 
     assert rows["move"].split(" | ")[1] == f"{np.mean(~hold):.1%}"
     if (~hold).any():
         assert rows["move"].split(" | ")[2] == f"{cinn_log_loss_np(pred[~hold], y[~hold]):.3e}"
+
+
+def test_several_datasets_are_concatenated_split_by_split(data_path: Path) -> None:
+    """``--data A B``: each split is A's labels then B's (each label keeps its file's split);
+    the metadata names both files and counts all labels."""
+    one = load_data(data_path)
+    two = load_data([data_path, data_path])
+    for s in ("train", "val", "test"):
+        np.testing.assert_array_equal(two.splits[s].y, np.concatenate([one.splits[s].y] * 2))
+        np.testing.assert_array_equal(two.splits[s].feats, np.concatenate([one.splits[s].feats] * 2))
+    assert two.meta["labels"] == 2 * one.meta["labels"]
+    assert [f["file"] for f in two.meta["files"]] == [data_path.name] * 2
+    assert two.path == f"{data_path.name}+{data_path.name}"

@@ -1,4 +1,5 @@
-"""``cikan dataset``: labels tau* = pi*(x_d, x_c) from conventional-TSG missions, as Parquet."""
+"""``cikan dataset``: labels tau* = pi*(x_d, x_c) from conventional-TSG missions (or on-policy, from
+another governor's), as Parquet."""
 
 from __future__ import annotations
 
@@ -9,9 +10,10 @@ from . import add_config_args, config_from_args, dumps
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("dataset", help="generate labelled data for the learned governor (Parquet)",
-                       description="Run conventional-TSG missions from the widened Monte Carlo "
-                                   "distribution and store every active update with tau* < 0 as a "
-                                   "label (x_d, x_c, t, tau*), split train/val/test by mission.")
+                       description="Run conventional-TSG missions (or another governor's: "
+                                   "--governor) from the widened Monte Carlo distribution and store "
+                                   "every active update with tau* < 0 as a label (x_d, x_c, t, "
+                                   "tau*), split train/val/test by mission.")
     p.add_argument("--labels", type=int, required=True, help="number of labels N")
     p.add_argument("--out", required=True, metavar="PATH", help="output Parquet file")
     p.add_argument("--workers", type=int, default=None,
@@ -23,6 +25,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sigma-max", type=float, default=15.0, help="largest start spread sigma [km]")
     p.add_argument("--val-fraction", type=float, default=0.05, help="fraction of missions for val")
     p.add_argument("--test-fraction", type=float, default=0.05, help="fraction of missions for test")
+    p.add_argument("--governor", default="conventional", metavar="NAME",
+                   help="governor flying the missions (default conventional); another one gives "
+                        "on-policy labels: pi* solved at the states it visited, from its own tau_prev")
     p.add_argument("--chunk", type=int, default=4, help="missions per task")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--json", action="store_true", help="print the metadata as one JSON object")
@@ -42,7 +47,8 @@ def run(args: argparse.Namespace) -> int:
 
     workers = args.workers if args.workers is not None else (os.cpu_count() or 1)
     df, meta = generate(config_from_args(args), args.labels, spec, workers=workers,
-                        dask_address=args.dask, chunk=args.chunk, progress=not args.quiet)
+                        dask_address=args.dask, chunk=args.chunk, progress=not args.quiet,
+                        governor=args.governor)
     path = write_parquet(df, meta, args.out)
     summary = {k: v for k, v in meta.items() if k != "config"}
     summary["out"] = str(path)

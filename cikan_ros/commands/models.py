@@ -27,7 +27,7 @@ def run(args: argparse.Namespace) -> int:
 
     if not INTRO.exists():
         raise CikanError(f"introduction not found: {INTRO}")
-    page, _ = models_page(INTRO.read_text(), args.data, args.split)
+    page, _ = models_page(INTRO.read_text(), args.data, args.split, out=args.out)
     if args.out:
         Path(args.out).write_text(page)
         print(f"wrote {args.out}")

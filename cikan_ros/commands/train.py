@@ -17,7 +17,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "validation loss is written as model.safetensors + card.json.")
     p.add_argument("--model", required=True, choices=("cikan", "grbf", "rswaf", "relu", "gelu"),
                    help=FAMILY_HELP)
-    p.add_argument("--data", default="runs/dataset.parquet", metavar="PATH", help="dataset (Parquet)")
+    p.add_argument("--data", default=["runs/dataset.parquet"], nargs="+", metavar="PATH",
+                   help="dataset (Parquet); several are concatenated, each label in its own "
+                        "file's split (e.g. conventional plus on-policy labels)")
     p.add_argument("--out", required=True, metavar="DIR", help="model directory, e.g. models/cikan")
     p.add_argument("--study", metavar="URL", default=None,
                    help="take architecture and hyper-parameters from the best trial of the Optuna "

@@ -9,6 +9,10 @@ mission is one conventional closed loop (``mission.run_mission``); every active 
 as the governor saw them (through SI, ``MissionResult.update_states``). The dataset is
 the labels of missions 0, 1, 2, ... in order, cut at exactly N labels, so the result depends on
 the seed only: not on the number of workers nor on where they run (local processes or Dask).
+
+On-policy labels (``governor`` other than "conventional"): the named governor flies each
+mission, and each of its active updates is labelled with pi* solved at the state it visited,
+from the tau_{k-1} it had (``Predictor.optimal_shift``).
 """
 
 from __future__ import annotations
@@ -26,7 +30,7 @@ from numpy.typing import NDArray
 
 from ..config import Config, config_from_flat
 from ..errors import NoFeasibleShiftError
-from ..governor import ConventionalGovernor
+from ..governor import ConventionalGovernor, Governor, make_governor
 from ..mission import MissionResult, run_mission, sample_start
 from ..parallel import ordered_map
 from ..tsg import Predictor
@@ -74,21 +78,26 @@ def mission_plan(spec: DatasetSpec, mission: int) -> tuple[float, str, int]:
     return sigma, split, start_seed
 
 
-def update_labels(res: MissionResult) -> dict[str, NDArray]:
-    """Labels of one conventional mission: every active update (tau_{k-1} < 0) with tau* < 0.
+def update_labels(res: MissionResult, predictor: Predictor | None = None) -> dict[str, NDArray]:
+    """Labels of one mission: every active update (tau_{k-1} < 0) with tau* < 0.
 
     States are those the governor was given (through SI; ``MissionResult.update_states``, as the
-    benchmark takes them); tau* is the governor's answer there, i.e. pi* over [tau_{k-1}, 0].
+    benchmark takes them). Without ``predictor`` the mission is the conventional TSG's and tau* is
+    its answer, i.e. pi* over [tau_{k-1}, 0]; with it, tau* = pi* is solved at each state from the
+    governor's own tau_{k-1} (on-policy labels of any governor).
     """
-    states = [s for s in res.update_states() if s.tau < 0.0]
-    n = len(states)
+    states = res.update_states()
+    stars = [s.tau if predictor is None else predictor.optimal_shift(s.x_d, s.t, s.tau_prev)[0]
+             for s in states]
+    keep = [(s, star) for s, star in zip(states, stars) if star < 0.0]
+    n = len(keep)
     return {
-        "t_s": np.array([s.t for s in states], dtype=float),
-        "update_k": np.array([s.k for s in states], dtype=np.int64),
-        "x_d": np.array([s.x_d for s in states], dtype=float).reshape(n, 6),
-        "x_c": np.array([s.x_c for s in states], dtype=float).reshape(n, 6),
-        "tau_prev_s": np.array([s.tau_prev for s in states], dtype=float),
-        "tau_star_s": np.array([s.tau for s in states], dtype=float),
+        "t_s": np.array([s.t for s, _ in keep], dtype=float),
+        "update_k": np.array([s.k for s, _ in keep], dtype=np.int64),
+        "x_d": np.array([s.x_d for s, _ in keep], dtype=float).reshape(n, 6),
+        "x_c": np.array([s.x_c for s, _ in keep], dtype=float).reshape(n, 6),
+        "tau_prev_s": np.array([s.tau_prev for s, _ in keep], dtype=float),
+        "tau_star_s": np.array([star for _, star in keep], dtype=float),
     }
 
 
@@ -104,13 +113,22 @@ def _predictor(cfg_json: str) -> Predictor:
     return pred
 
 
-def label_missions(cfg_json: str, spec: DatasetSpec, missions: Sequence[int]) -> list[dict[str, Any]]:
-    """Run the given missions and return their labels, one dict per mission (in order).
+_GOVERNORS: dict[tuple[str, str], Governor] = {}
+
+
+def label_missions(cfg_json: str, spec: DatasetSpec, missions: Sequence[int],
+                   governor: str = "conventional") -> list[dict[str, Any]]:
+    """Run the given missions with ``governor`` and return their labels, one dict per mission (in
+    order).
 
     Top-level and argument-only so local processes and Dask workers can run it.
     """
     pred = _predictor(cfg_json)
-    gov = ConventionalGovernor(pred)
+    if governor == "conventional":
+        gov: Governor = ConventionalGovernor(pred)
+    else:
+        gov = _GOVERNORS.get((cfg_json, governor)) or make_governor(governor, pred.config, pred)
+        _GOVERNORS[(cfg_json, governor)] = gov
     out = []
     for m in missions:
         sigma, split, start_seed = mission_plan(spec, m)
@@ -119,7 +137,7 @@ def label_missions(cfg_json: str, spec: DatasetSpec, missions: Sequence[int]) ->
         except NoFeasibleShiftError:
             out.append({"mission": m, "split": split, "sigma_km": sigma, "n": 0})
             continue
-        lab = update_labels(run_mission(gov, x0))
+        lab = update_labels(run_mission(gov, x0), None if governor == "conventional" else pred)
         out.append({"mission": m, "split": split, "sigma_km": sigma, "n": len(lab["t_s"]), **lab})
     return out
 
@@ -133,11 +151,12 @@ def _chunks(size: int) -> Iterator[list[int]]:
 
 
 def generate(cfg: Config, n_labels: int, spec: DatasetSpec, workers: int = 1,
-             dask_address: str | None = None, chunk: int = 4, progress: bool = True
-             ) -> tuple["Any", dict[str, Any]]:
+             dask_address: str | None = None, chunk: int = 4, progress: bool = True,
+             governor: str = "conventional") -> tuple["Any", dict[str, Any]]:
     """Generate exactly ``n_labels`` labels. Returns (pandas DataFrame, metadata).
 
-    ``workers`` local processes (1: in this process) or the Dask cluster at ``dask_address``.
+    ``workers`` local processes (1: in this process) or the Dask cluster at ``dask_address``;
+    ``governor`` flies the missions (on-policy labels when it is not the conventional TSG).
     """
     import pandas as pd
     from tqdm import tqdm
@@ -147,10 +166,12 @@ def generate(cfg: Config, n_labels: int, spec: DatasetSpec, workers: int = 1,
     if workers < 1:
         raise DatasetError(f"--workers must be >= 1, got {workers}")
     cfg_json = json.dumps(cfg.flat(), sort_keys=True)
+    if governor != "conventional":
+        make_governor(governor, cfg)  # a bad name or model file fails here, before any worker starts
     start = time.perf_counter()
     # Chunks of missions, in mission order, on this process, local processes or Dask.
-    stream = ordered_map(functools.partial(label_missions, cfg_json, spec), _chunks(chunk),
-                         workers, dask_address)
+    stream = ordered_map(functools.partial(label_missions, cfg_json, spec, governor=governor),
+                         _chunks(chunk), workers, dask_address)
     parts: list[dict[str, Any]] = []
     total = 0
     n_missions = 0
@@ -186,6 +207,7 @@ def generate(cfg: Config, n_labels: int, spec: DatasetSpec, workers: int = 1,
     df["split"] = df["split"].astype(str)
     meta = {
         "recipe": RECIPE,
+        "governor": governor,
         "labels": int(len(df)),
         "missions": n_missions,
         "seed": spec.seed,

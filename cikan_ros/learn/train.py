@@ -13,7 +13,7 @@ import os
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import torch
@@ -47,11 +47,26 @@ class Data:
     features: str = "vnb"
 
 
-def load_data(path: str | Path, kind: str = "vnb") -> Data:
-    """Read a dataset and compute features (float64) and targets per split."""
-    df, meta = read_parquet(path)
-    if (df["tau_star_s"] >= 0).any():
-        raise DatasetError(f"dataset {path} has labels tau* >= 0 (only tau* < 0 can be learned)")
+def load_data(path: str | Path | Sequence[str | Path], kind: str = "vnb") -> Data:
+    """Read a dataset, or several concatenated (each label keeps its own file's split), and
+    compute features (float64) and targets per split. Several files: e.g. conventional labels
+    plus on-policy labels of a learned governor (``cikan dataset --governor``)."""
+    import pandas as pd
+
+    paths = [path] if isinstance(path, (str, Path)) else list(path)
+    if not paths:
+        raise DatasetError("no dataset given")
+    frames, metas = zip(*(read_parquet(p) for p in paths))
+    for p, df in zip(paths, frames):
+        if (df["tau_star_s"] >= 0).any():
+            raise DatasetError(f"dataset {p} has labels tau* >= 0 (only tau* < 0 can be learned)")
+    df = frames[0] if len(frames) == 1 else pd.concat(frames, ignore_index=True)
+    meta = dict(metas[0])
+    if len(paths) > 1:
+        meta.update(labels=int(len(df)), split_labels={s: int((df["split"] == s).sum()) for s in SPLITS},
+                    files=[{"file": Path(p).name, "governor": m.get("governor", "conventional"),
+                            "labels": m.get("labels"), "seed": m.get("seed")} for p, m in zip(paths, metas)])
+    path = "+".join(Path(p).name for p in paths) if len(paths) > 1 else paths[0]
     out = {}
     for s in SPLITS:
         part = df[df["split"] == s]
