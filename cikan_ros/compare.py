@@ -17,14 +17,11 @@ from dataclasses import dataclass
 from typing import Any, Iterable
 
 from .analysis.paired import paired_ratio
-from .config import Config, config_from_flat
+from .config import Config
 from .errors import CikanError
-from .governor import Governor, make_governor, warm_up
-from .mission import nominal_start, run_mission, sample_start
+from .mission import run_mission, sample_start
+from .montecarlo import process_governor
 from .parallel import ordered_map
-
-_GOVERNORS: dict[tuple[str, str], Governor] = {}
-
 
 @dataclass(frozen=True)
 class Flight:
@@ -37,11 +34,7 @@ class Flight:
 
 def fly(task: Flight) -> dict[str, Any]:
     """Fly one mission (governors cached and warmed up per process); its paired figures."""
-    key = (task.config_json, task.governor)
-    gov = _GOVERNORS.get(key)
-    if gov is None:
-        gov = _GOVERNORS[key] = make_governor(task.governor, config_from_flat(json.loads(task.config_json)))
-        warm_up(gov, nominal_start(gov.predictor), gov.predictor.orbit.state(0.0))
+    gov = process_governor(task.config_json, task.governor)
     res = run_mission(gov, sample_start(gov.predictor, task.seed))
     m = res.metrics()
     active = [r for r in res.updates if r.active]

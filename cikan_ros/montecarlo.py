@@ -73,6 +73,17 @@ def load_run_arrays(npz_path: str | Path) -> dict[str, np.ndarray]:
         return {k: data[k] for k in data.files}
 
 
+def process_governor(config_json: str, name: str) -> Governor:
+    """The governor ``name`` under a configuration (flat JSON), made once per worker process and
+    warmed up, so that no run pays for loading the kernels or the network."""
+    key = (config_json, name)
+    gov = _GOVERNORS.get(key)
+    if gov is None:
+        gov = _GOVERNORS[key] = make_governor(name, config_from_flat(json.loads(config_json)))
+        warm_up(gov, nominal_start(gov.predictor), gov.predictor.orbit.state(0.0))
+    return gov
+
+
 def run_one(task: RunTask) -> dict[str, Any]:
     """Fly one Monte Carlo run (or reuse its stored result); return its metrics."""
     json_path, npz_path = run_paths(task.out_dir, task.governor, task.seed)
@@ -84,12 +95,7 @@ def run_one(task: RunTask) -> dict[str, Any]:
                 return stored["metrics"]
         except (json.JSONDecodeError, KeyError):
             pass  # an unreadable result is flown again
-    key = (task.config_json, task.governor)
-    gov = _GOVERNORS.get(key)
-    if gov is None:
-        gov = _GOVERNORS[key] = make_governor(task.governor, config_from_flat(flat))
-        x_n = nominal_start(gov.predictor)  # no run of the campaign pays for loading the kernels
-        warm_up(gov, x_n, gov.predictor.orbit.state(0.0))
+    gov = process_governor(task.config_json, task.governor)
     x0 = sample_start(gov.predictor, task.seed)
     return save_run(run_mission(gov, x0), task.seed, json_path, npz_path)
 

@@ -30,8 +30,9 @@ from numpy.typing import NDArray
 
 from ..config import Config, config_from_flat
 from ..errors import NoFeasibleShiftError
-from ..governor import ConventionalGovernor, Governor, make_governor
+from ..governor import ConventionalGovernor, make_governor
 from ..mission import MissionResult, run_mission, sample_start
+from ..montecarlo import process_governor
 from ..parallel import ordered_map
 from ..tsg import Predictor
 from .errors import DatasetError
@@ -113,9 +114,6 @@ def _predictor(cfg_json: str) -> Predictor:
     return pred
 
 
-_GOVERNORS: dict[tuple[str, str], Governor] = {}
-
-
 def label_missions(cfg_json: str, spec: DatasetSpec, missions: Sequence[int],
                    governor: str = "conventional") -> list[dict[str, Any]]:
     """Run the given missions with ``governor`` and return their labels, one dict per mission (in
@@ -124,11 +122,7 @@ def label_missions(cfg_json: str, spec: DatasetSpec, missions: Sequence[int],
     Top-level and argument-only so local processes and Dask workers can run it.
     """
     pred = _predictor(cfg_json)
-    if governor == "conventional":
-        gov: Governor = ConventionalGovernor(pred)
-    else:
-        gov = _GOVERNORS.get((cfg_json, governor)) or make_governor(governor, pred.config, pred)
-        _GOVERNORS[(cfg_json, governor)] = gov
+    gov = ConventionalGovernor(pred) if governor == "conventional" else process_governor(cfg_json, governor)
     out = []
     for m in missions:
         sigma, split, start_seed = mission_plan(spec, m)
