@@ -55,6 +55,8 @@ def share_files() -> list[tuple[str, list[str]]]:
     out = [("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
            (share, ["package.xml"]),
            (f"{share}/config", sorted(str(p.relative_to(HERE)) for p in (HERE / "config").glob("*.yaml"))),
+           (f"{share}/config/truth", sorted(str(p.relative_to(HERE))
+                                            for p in (HERE / "config" / "truth").glob("*.yaml"))),
            (f"{share}/launch", sorted(str(p.relative_to(HERE)) for p in (HERE / "launch").glob("*.launch.*"))),
            (f"{share}/models", ["models/README.md"])]
     for family in sorted(p for p in (HERE / "models").iterdir() if p.is_dir()):

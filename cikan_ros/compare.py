@@ -35,7 +35,7 @@ class Flight:
 def fly(task: Flight) -> dict[str, Any]:
     """Fly one mission (governors cached and warmed up per process); its paired figures."""
     gov = process_governor(task.config_json, task.governor)
-    res = run_mission(gov, sample_start(gov.predictor, task.seed))
+    res = run_mission(gov, sample_start(gov.predictor, task.seed), task.seed)
     m = res.metrics()
     active = [r for r in res.updates if r.active]
     return {"delta_v_kmps": m["delta_v_kmps"], "t_tau_zero_s": m["t_tau_zero_s"],

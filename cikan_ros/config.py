@@ -136,8 +136,19 @@ class TSGConfig:
     initial_grid_s: float = 1.0
     update_period_s: float = 60.0
     zero_snap_s: float = 1e-2
+    robust: bool = False
+    robust_zeta_s: float = 0.0
+    chief_anchor_tolerance_km: float = 1e-6
+    prediction_gravity: str = "two-body"
 
     def __post_init__(self) -> None:
+        _check(isinstance(self.robust, bool), "tsg.robust", self.robust, "must be true or false")
+        _check(math.isfinite(self.robust_zeta_s) and 0.0 <= self.robust_zeta_s <= 60.0,
+               "tsg.robust_zeta_s", self.robust_zeta_s, "must lie in [0, 60] s")
+        _check(math.isfinite(self.chief_anchor_tolerance_km) and self.chief_anchor_tolerance_km >= 0,
+               "tsg.chief_anchor_tolerance_km", self.chief_anchor_tolerance_km, "must be finite and >= 0")
+        _check(self.prediction_gravity in GRAVITY_MODELS, "tsg.prediction_gravity",
+               self.prediction_gravity, f"must be one of {GRAVITY_MODELS}")
         for name in ("sample_period_s", "terminal_pos_km", "terminal_vel_kmps", "tolerance_s",
                      "initial_window_s", "initial_grid_s", "update_period_s"):
             _positive(f"tsg.{name}", getattr(self, name))
@@ -171,6 +182,66 @@ class MissionConfig:
                self.mc_sigma_km, "must be >= 0")
         _check(isinstance(self.plant_substeps, int) and 1 <= self.plant_substeps <= 10000,
                "mission.plant_substeps", self.plant_substeps, "must be an integer in [1, 10000]")
+
+
+#: Gravity models of the truth and of the prediction: two-body, or two-body plus Earth's J2.
+GRAVITY_MODELS = ("two-body", "j2")
+
+
+@dataclass(frozen=True)
+class TruthConfig:
+    """The world the simulator flies, and the declared bounds of its errors (docs/robustness.md).
+
+    Every error bound is multiplied by ``scale`` (0: the nominal model exactly). The simulator
+    draws the errors within these bounds (seeded); robust Verify tightens the constraints by the
+    same declared bounds. Units: km, s; fractions are dimensionless.
+    """
+
+    name: str = "nominal"
+    scale: float = 1.0
+    gravity: str = "two-body"
+    thrust_bias_max: float = 0.0
+    thrust_pointing_max_deg: float = 0.0
+    disturbance_max_kmps2: float = 0.0
+    disturbance_correlation_s: float = 600.0
+    nav_pos_floor_km: float = 0.0
+    nav_pos_range_fraction: float = 0.0
+    nav_vel_floor_kmps: float = 0.0
+    nav_vel_range_fraction_per_s: float = 0.0
+    nav_correlation_s: float = 300.0
+
+    def __post_init__(self) -> None:
+        _check(isinstance(self.name, str) and self.name != "", "truth.name", self.name,
+               "must be a non-empty string")
+        _check(self.gravity in GRAVITY_MODELS, "truth.gravity", self.gravity,
+               f"must be one of {GRAVITY_MODELS}")
+        for name in ("scale", "thrust_bias_max", "thrust_pointing_max_deg", "disturbance_max_kmps2",
+                     "nav_pos_floor_km", "nav_pos_range_fraction", "nav_vel_floor_kmps",
+                     "nav_vel_range_fraction_per_s"):
+            v = getattr(self, name)
+            _check(isinstance(v, (int, float)) and math.isfinite(v) and v >= 0, f"truth.{name}", v,
+                   "must be a finite number >= 0")
+        _positive("truth.disturbance_correlation_s", self.disturbance_correlation_s)
+        _positive("truth.nav_correlation_s", self.nav_correlation_s)
+        _check(self.scale * self.thrust_bias_max < 0.5, "truth.thrust_bias_max", self.thrust_bias_max,
+               "times truth.scale must stay below 0.5 (a thruster error of 50 % or more)")
+        _check(self.scale * self.thrust_pointing_max_deg < 45.0, "truth.thrust_pointing_max_deg",
+               self.thrust_pointing_max_deg, "times truth.scale must stay below 45 degrees")
+        _check(self.scale * self.nav_pos_range_fraction < 0.3, "truth.nav_pos_range_fraction",
+               self.nav_pos_range_fraction, "times truth.scale must stay below 0.3")
+
+    def bound(self, name: str) -> float:
+        """The declared bound ``name`` times ``scale``."""
+        return self.scale * float(getattr(self, name))
+
+    @property
+    def is_nominal(self) -> bool:
+        """True when the truth equals the prediction model (two-body, every bound 0)."""
+        return self.gravity == "two-body" and all(
+            self.bound(n) == 0.0 for n in ("thrust_bias_max", "thrust_pointing_max_deg",
+                                           "disturbance_max_kmps2", "nav_pos_floor_km",
+                                           "nav_pos_range_fraction", "nav_vel_floor_kmps",
+                                           "nav_vel_range_fraction_per_s"))
 
 
 #: Update rules of learned governors: the default ("keep", SPEC §8 beyond the paper) and the
@@ -219,6 +290,7 @@ class Config:
     tsg: TSGConfig = field(default_factory=TSGConfig)
     mission: MissionConfig = field(default_factory=MissionConfig)
     learned: LearnedConfig = field(default_factory=LearnedConfig)
+    truth: TruthConfig = field(default_factory=TruthConfig)
 
     def __post_init__(self) -> None:
         ratio = self.tsg.update_period_s / self.control.period_s
@@ -249,7 +321,7 @@ class Config:
 
 _GROUP_CLASSES = {
     "orbit": OrbitConfig, "control": ControlConfig, "constraints": ConstraintConfig,
-    "tsg": TSGConfig, "mission": MissionConfig, "learned": LearnedConfig,
+    "tsg": TSGConfig, "mission": MissionConfig, "learned": LearnedConfig, "truth": TruthConfig,
 }
 
 
@@ -319,6 +391,37 @@ def read_params(path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"configuration file {p} has no '/**: ros__parameters:' section")
     flat: dict[str, Any] = {}
     _flatten("", params, flat)
+    return flat
+
+
+#: Shipped truth models: ``config/truth/<name>.yaml``.
+TRUTH_DIR = shipped("config/truth")
+#: Keys a truth file may set besides ``truth.*``: the docking test its navigation accuracy allows.
+TRUTH_FILE_EXTRA_KEYS = ("mission.dock_distance_km", "mission.dock_speed_kmps")
+
+
+def truth_names() -> list[str]:
+    """Names of the shipped truth models."""
+    return sorted(p.stem for p in TRUTH_DIR.glob("*.yaml"))
+
+
+def truth_overrides(name_or_path: str) -> dict[str, Any]:
+    """``{"group.key": value}`` of a truth model: a shipped name (``nominal``, ``realistic``) or a
+    params file with a ``truth`` group (and optionally the docking test, ``mission.dock_*``).
+    ConfigError naming an unknown name, a missing file or a key a truth file may not set."""
+    p = Path(name_or_path)
+    if not (p.suffix in (".yaml", ".yml") or p.exists()):
+        shipped_file = TRUTH_DIR / f"{name_or_path}.yaml"
+        if not shipped_file.exists():
+            raise ConfigError(f"unknown truth model {name_or_path!r}: choose one of "
+                              f"{truth_names()} or give a YAML file")
+        p = shipped_file
+    flat = read_params(p)
+    bad = [k for k in flat if not k.startswith("truth.") and k not in TRUTH_FILE_EXTRA_KEYS]
+    if bad:
+        raise ConfigError(f"truth file {p} sets {bad[0]!r}: a truth file holds the truth group "
+                          f"and {', '.join(TRUTH_FILE_EXTRA_KEYS)} only")
+    flat.setdefault("truth.name", p.stem)
     return flat
 
 

@@ -16,7 +16,7 @@ from typing import Protocol, runtime_checkable
 from numpy.typing import ArrayLike
 
 from .config import LEARNED_ALGORITHMS, Config
-from .tsg import Predictor
+from .tsg import ChiefAnchor, Predictor
 
 #: Decision paths, as published in /tsg/time_shift ``source`` and kept in mission records.
 PATH_INITIAL = "initial"        # first-instant search
@@ -78,6 +78,7 @@ class Governor(Protocol):
 
     name: str
     predictor: Predictor
+    anchor: ChiefAnchor
 
     def initial(self, x_d: ArrayLike, x_c: ArrayLike, t: float) -> UpdateRecord:
         """First shift at the mission start (raises NoFeasibleShiftError if there is none)."""
@@ -88,9 +89,11 @@ class Governor(Protocol):
         ...
 
 
-def initial_update(predictor: Predictor, x_d: ArrayLike, t: float) -> UpdateRecord:
-    """The first-instant search (SPEC §5) as a timed record; every governor starts with it."""
+def initial_update(anchor: ChiefAnchor, x_d: ArrayLike, x_c: ArrayLike, t: float) -> UpdateRecord:
+    """The first-instant search (SPEC §5) from the measured chief x_c, as a timed record; every
+    governor starts with it."""
     started = start_clock()
+    predictor = anchor(x_c, t)
     tau, calls = predictor.initial_shift(x_d, t)
     return make_record(started, tau, PATH_INITIAL, calls,
                        update_index(t, predictor.config.tsg.update_period_s))
@@ -103,17 +106,20 @@ class ConventionalGovernor:
 
     def __init__(self, predictor: Predictor) -> None:
         self.predictor = predictor
+        self.anchor = ChiefAnchor(predictor)
 
     @classmethod
     def from_config(cls, cfg: Config) -> "ConventionalGovernor":
         return cls(Predictor.from_config(cfg))
 
     def initial(self, x_d: ArrayLike, x_c: ArrayLike, t: float) -> UpdateRecord:
-        return initial_update(self.predictor, x_d, t)
+        return initial_update(self.anchor, x_d, x_c, t)
 
     def update(self, x_d: ArrayLike, x_c: ArrayLike, t: float, tau_prev: float) -> UpdateRecord:
         started = start_clock()
-        tau, calls = self.predictor.optimal_shift(x_d, t, tau_prev)
+        # tau_prev = 0 predicts nothing: the chief is anchored only on updates that predict.
+        pred = self.predictor if tau_prev == 0.0 else self.anchor(x_c, t)
+        tau, calls = pred.optimal_shift(x_d, t, tau_prev)
         path = PATH_ZERO if calls == 0 else PATH_VERIFY_ZERO if tau == 0.0 else PATH_BISECT
         return make_record(started, tau, path, calls,
                            update_index(t, self.predictor.config.tsg.update_period_s), tau_prev)
@@ -151,6 +157,7 @@ def warm_up(governor: Governor, x_d: ArrayLike, x_c: ArrayLike, t: float = 0.0) 
     objects made later are scanned."""
     pred = governor.predictor
     first = governor.initial(x_d, x_c, t)
+    governor.anchor.current = pred  # the warm-up's anchoring is not part of any mission
     t1 = t + pred.config.tsg.update_period_s
     tau0 = min(first.tau_s, -pred.config.tsg.tolerance_s)
     # Every kernel entry point a decision may take (the update itself may take only one path).

@@ -19,11 +19,11 @@ from scipy.optimize import brentq
 from .config import Config
 from .constraints import Margins, margins
 from .control import ftre_control
-from .dynamics import Plant
 from .errors import NoFeasibleShiftError, StateError
 from .governor import Governor, UpdateRecord
 from .orbit import check_states
-from .tsg import Predictor
+from .truth import Truth
+from .tsg import ChiefAnchor, Predictor
 from .units import ns_to_seconds, seconds_to_ns, through_si
 
 #: Attempts of the Monte Carlo rejection sampler before it gives up on a seed.
@@ -54,11 +54,13 @@ def nominal_start(predictor: Predictor) -> NDArray:
 
 def sample_start(predictor: Predictor, seed: int, sigma_km: float | None = None) -> NDArray:
     """A Monte Carlo start: nominal position + N(0, sigma^2 I) km, nominal velocity, drawn with
-    ``numpy.random.default_rng(seed)`` until h1 <= 0 and an initial shift exists (SPEC §6).
+    ``numpy.random.default_rng(seed)`` until h1 <= 0 and an initial shift exists (SPEC §6) for
+    nominal Verify (robust Verify flies the same starts, or reports that none is feasible).
 
     ``sigma_km`` overrides ``mission.mc_sigma_km`` (the data generator widens the distribution).
     """
     cfg = predictor.config
+    predictor = predictor.nominal()  # the same starts for nominal and robust Verify
     sigma = cfg.mission.mc_sigma_km if sigma_km is None else sigma_km
     rng = np.random.default_rng(seed)
     x_nom = nominal_start(predictor)
@@ -122,6 +124,9 @@ class ClosedLoop(Schedule):
     def __init__(self, predictor: Predictor) -> None:
         super().__init__(predictor.config)
         self.predictor = predictor
+        #: The controller's own chief anchor (the governor holds another): the ROS nodes
+        #: anchor alike, whichever process computes the command.
+        self.anchor = ChiefAnchor(predictor)
 
     def decide(self, governor: Governor, k: int, x_d: NDArray, x_c: NDArray,
                tau_prev: float | None) -> UpdateRecord | None:
@@ -134,10 +139,13 @@ class ClosedLoop(Schedule):
             return governor.update(x_d, x_c, t, tau_prev)
         return None
 
-    def command(self, k: int, tau: float, x_d: NDArray) -> NDArray:
-        """Saturated FTRE acceleration (km/s^2, ECI) at t_k toward x_v = x_c(t_k + tau)."""
-        x_v, nu_v = self.predictor.orbit.state_and_anomaly(self.time(k) + tau)
-        return ftre_control(self.predictor.gains, float(nu_v), x_d, x_v, self.config.control.u_max_kmps2)
+    def command(self, k: int, tau: float, x_d: NDArray, x_c: NDArray) -> NDArray:
+        """Saturated FTRE acceleration (km/s^2, ECI) at t_k toward x_v = x_c(t_k + tau), the
+        measured chief x_c at t_k propagated by tau with the prediction model."""
+        t = self.time(k)
+        pred = self.anchor(x_c, t)
+        x_v, nu_v = pred.orbit.state_and_anomaly(t + tau)
+        return ftre_control(pred.gains, float(nu_v), x_d, x_v, self.config.control.u_max_kmps2)
 
 
 @dataclass
@@ -155,9 +163,20 @@ class MissionResult:
     initial: UpdateRecord
     update_t: NDArray   # (U,) times of the updates after the first instant
     updates: list[UpdateRecord] = field(default_factory=list)
+    #: What the governor and the controller saw (measured states, before the SI round trip);
+    #: None: the truth itself (the nominal truth measures exactly).
+    x_d_seen: NDArray | None = None
+    x_c_seen: NDArray | None = None
+    #: |applied thrust| allowed on the truth: u_max times 1 + the declared bias bound (km/s^2).
+    thrust_limit: float | None = None
+
+    @property
+    def thrust_limit_factor(self) -> float:
+        return 1.0 if self.thrust_limit is None else self.thrust_limit / self.config.control.u_max_kmps2
 
     def metrics(self) -> dict[str, Any]:
-        """Per-run metrics (SPEC §6, §9); margins are -h (>= 0 safe), h1 normalised."""
+        """Per-run metrics (SPEC §6, §9), judged on the truth; margins are -h (>= 0 safe), h1
+        normalised, h2 against the thrust limit on the truth."""
         cfg = self.config
         rel = self.x_d - self.x_c
         dist = np.linalg.norm(rel[:, :3], axis=1)
@@ -165,7 +184,7 @@ class MissionResult:
         m = self.margins
         h1_bad = m.h1_normalised > cfg.constraints.plant_h1_tolerance
         h3_bad = m.h3 > cfg.constraints.plant_h3_tolerance_kmps
-        h2_bad = m.h2 > 1e-12 * cfg.control.u_max_kmps2
+        h2_bad = m.h2 > 1e-12 * cfg.control.u_max_kmps2 * self.thrust_limit_factor
         violations = int(np.count_nonzero(h1_bad | h2_bad | h3_bad))
         zero_idx = np.flatnonzero(self.tau == 0.0)
         tau_zero = bool(self.tau[-1] == 0.0)
@@ -214,11 +233,16 @@ class MissionResult:
             "active_verify_calls_max": max((r.verify_calls for r in self.updates if r.active), default=0)
             if timed else None,
             "duration_s": float(self.t[-1] - self.t[0]),
+            "truth": cfg.truth.name,
+            "truth_scale": cfg.truth.scale,
+            "robust": cfg.tsg.robust,
         }
 
     def update_states(self, active_only: bool = True) -> list["UpdateState"]:
         """What the governor was given at each update (after the first instant) and its answer."""
-        return update_states(self.config, self.t, self.x_d, self.x_c,
+        x_d = self.x_d if self.x_d_seen is None else self.x_d_seen
+        x_c = self.x_c if self.x_c_seen is None else self.x_c_seen
+        return update_states(self.config, self.t, x_d, x_c,
                              [(r.k, r.tau_prev, r.tau_s) for r in self.updates], active_only)
 
 
@@ -304,22 +328,26 @@ def audit_shifts(predictor: Predictor, x_d: NDArray, tau: NDArray) -> ShiftAudit
     return ShiftAudit(int(unverified), int(off_schedule), int(decisions))
 
 
-def run_mission(governor: Governor, x_d0: NDArray, plant: Plant | None = None) -> MissionResult:
-    """Closed loop from deputy state x_d0 at t = 0 for T_sim: the :class:`ClosedLoop` step with
-    the plant stepped under the held command (ZOH). The governor and the controller see what
-    crosses the ROS boundary (SI and back), as the nodes do.
+def run_mission(governor: Governor, x_d0: NDArray, seed: int | None = None,
+                truth: Truth | None = None) -> MissionResult:
+    """Closed loop from the true deputy state x_d0 at t = 0 for T_sim: the :class:`ClosedLoop`
+    step on the states the :class:`Truth` of ``seed`` measures, the truth stepped under the
+    applied thrust (ZOH). The governor and the controller see what crosses the ROS boundary (SI
+    and back), as the nodes do; violations, docking and Delta-V are judged on the truth.
     """
     pred = governor.predictor
     cfg = pred.config
     loop = ClosedLoop(pred)
     x = np.array(x_d0, dtype=float)
     check_states(x, "initial deputy state")
-    plant = plant or Plant(pred.orbit.mu, cfg.mission.plant_substeps)
+    truth = truth or Truth(cfg, seed, loop.n_steps)
     tc = cfg.control.period_s
     n_steps = loop.n_steps
     t = loop.times()
-    x_c = pred.orbit.state(t)
+    x_c = truth.chief[: n_steps + 1]
     x_d = np.empty((n_steps + 1, 6))
+    seen_d = np.empty((n_steps + 1, 6))
+    seen_c = np.empty((n_steps + 1, 6))
     u = np.zeros((n_steps + 1, 3))
     taus = np.empty(n_steps + 1)
     updates: list[UpdateRecord] = []
@@ -327,8 +355,10 @@ def run_mission(governor: Governor, x_d0: NDArray, plant: Plant | None = None) -
     first: UpdateRecord | None = None
     tau: float | None = None
     for k in range(n_steps):
-        x_seen = through_si(x)
-        rec = loop.decide(governor, k, x_seen, through_si(x_c[k]), tau)
+        seen_d[k] = truth.measure_deputy(k, x)[0]
+        seen_c[k] = truth.measure_chief(k)
+        x_seen, xc_seen = through_si(seen_d[k]), through_si(seen_c[k])
+        rec = loop.decide(governor, k, x_seen, xc_seen, tau)
         if rec is not None:
             if first is None:
                 first = rec
@@ -338,10 +368,15 @@ def run_mission(governor: Governor, x_d0: NDArray, plant: Plant | None = None) -
             tau = rec.tau_s
         x_d[k] = x
         taus[k] = tau
-        u[k] = through_si(loop.command(k, tau, x_seen))
-        x = plant.step(x, u[k], tc)
+        u[k] = truth.applied_thrust(through_si(loop.command(k, tau, x_seen, xc_seen)))
+        x = truth.step_deputy(k, x, u[k])
     x_d[-1] = x
     taus[-1] = tau
-    m = margins(x_d, x_c, u, cfg.constraints, cfg.control.u_max_kmps2)
+    seen_d[-1] = truth.measure_deputy(n_steps, x)[0]
+    seen_c[-1] = truth.measure_chief(n_steps)
+    limit = cfg.control.u_max_kmps2 * truth.max_thrust_factor
+    m = margins(x_d, x_c, u, cfg.constraints, limit)
     m.h2[-1] = math.nan  # no command is applied at the final instant
-    return MissionResult(cfg, governor.name, t, x_d, x_c, u, taus, m, first, np.array(update_t), updates)
+    nominal = truth.nominal
+    return MissionResult(cfg, governor.name, t, x_d, x_c, u, taus, m, first, np.array(update_t),
+                         updates, None if nominal else seen_d, None if nominal else seen_c, limit)

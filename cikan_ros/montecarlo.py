@@ -97,7 +97,7 @@ def run_one(task: RunTask) -> dict[str, Any]:
             pass  # an unreadable result is flown again
     gov = process_governor(task.config_json, task.governor)
     x0 = sample_start(gov.predictor, task.seed)
-    return save_run(run_mission(gov, x0), task.seed, json_path, npz_path)
+    return save_run(run_mission(gov, x0, task.seed), task.seed, json_path, npz_path)
 
 
 def run_campaign(cfg: Config, governors: list[str], runs: int, seed: int, out_dir: str | Path,

@@ -149,6 +149,17 @@ class KeplerOrbit:
         return cls(cfg.a_km, cfg.e, math.radians(cfg.i_deg), math.radians(cfg.raan_deg),
                    math.radians(cfg.argp_deg), float(true_to_mean_anomaly(nu0, cfg.e)), cfg.mu_km3_s2)
 
+    @classmethod
+    def from_state(cls, x: ArrayLike, t: float, mu: float) -> "KeplerOrbit":
+        """The osculating orbit of ECI state x (km, km/s) at time t (s since epoch)."""
+        el = state_to_elements(np.asarray(x, dtype=float), mu)
+        a, e = float(el["a"]), float(el["e"])
+        if not e < 1.0:
+            raise StateError(f"state is not on an elliptic orbit (e = {e})")
+        m_t = float(true_to_mean_anomaly(el["nu"], e))
+        n = math.sqrt(mu / a**3)
+        return cls(a, e, float(el["i"]), float(el["raan"]), float(el["argp"]), m_t - n * float(t), mu)
+
     @property
     def mean_motion(self) -> float:
         """n = sqrt(mu / a^3) in rad/s."""

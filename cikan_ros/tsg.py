@@ -10,11 +10,25 @@ Feasibility is NOT monotone in tau near the boundary (predicted trajectories gra
 so the bisection keeps a verified lower end: its answer is always feasible and lies within the
 tolerance of an infeasible shift. That deterministic answer is what this project calls pi*.
 The whole search runs inside one compiled call.
+
+Robust Verify (``tsg.robust``; derivation in docs/robustness.md) runs the same rollout from the
+measured state and carries two scalar tube radii along it, rho_j (position, km) and sigma_j
+(velocity, km/s): bounds on |truth - prediction| at sample j under the declared error bounds
+(navigation, thruster, disturbance, unmodelled J2), from the closed-loop error dynamics of the
+FTRE law. Each constraint is then checked on the whole ball around the predicted state: h1 as the
+distance of the predicted position to the cone's surface, |p| sin(alpha - theta) >= rho_j; h3 with
+|v| + sigma_j and |p| - rho_j; the terminal set shrunk by rho_j and sigma_j. With every bound 0
+the tubes are 0 and robust Verify answers as nominal Verify.
+
+The chief comes from its measured state (:class:`ChiefAnchor`): predictions start from the chief
+state received at t_k, propagated as a Kepler orbit, re-anchored whenever the measurement departs
+from the model by more than ``tsg.chief_anchor_tolerance_km``.
 """
 
 from __future__ import annotations
 
 import math
+import dataclasses
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -23,13 +37,16 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .config import Config
-from .constraints import (C_UMAX, constraint_params, h1_line_of_sight_kernel, h2_thrust_kernel,
+from .constraints import (C_APEX, C_COS_ALPHA, C_GAMMA1, C_GAMMA2, C_GAMMA3, C_UMAX, constraint_params, h1_line_of_sight_kernel, h2_thrust_kernel,
                           h3_approach_velocity_kernel)
 from .control import ftre_control_kernel, gain_table
-from .dynamics import rk4_kernel
+from .dynamics import j2_coefficient, rk4_kernel
 from .errors import NoFeasibleShiftError, StateError
 from .orbit import (P_E, P_M0, P_MU, P_N, KeplerOrbit, check_states, eccentric_anomaly_kernel,
                     state_from_anomaly_kernel, state_kernel, state_warm_kernel)
+from .robust import (R_C0PP, R_C0PV, R_C0VP, R_C0VV, R_CPE, R_CPP, R_CPV, R_CVE, R_CVP, R_CVV,
+                     R_DMAX, R_EPSU, R_KG, R_KP, R_KV, R_LAM, R_NPF, R_NPG, R_NVF, R_NVG, R_ON,
+                     R_SINA, R_ZETA, robust_params)
 from .units import ns_to_seconds
 from .units import seconds_to_ns as to_ns
 
@@ -39,7 +56,7 @@ def quantise_shift(tau: float) -> float:
 
 
 # Layout of the packed prediction parameters.
-T_SAMPLE, T_NSAMPLES, T_SUBSTEPS, T_TERM_POS, T_TERM_VEL = range(5)
+T_SAMPLE, T_NSAMPLES, T_SUBSTEPS, T_TERM_POS, T_TERM_VEL, T_J2R2 = range(6)
 
 
 @nb.njit(cache=True)
@@ -51,37 +68,132 @@ def chief_row_kernel(orb: NDArray, t: float, row: NDArray) -> None:
 
 
 @nb.njit(cache=True)
-def verify_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray,
+def verify_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: NDArray,
                   x0: NDArray, t_k: float, tau: float, chief: NDArray, chief_t0: float) -> bool:
-    """Verify(x0, t_k, tau) with packed orbit/gains/constraint/prediction parameters.
+    """Verify(x0, t_k, tau) with packed orbit/gains/constraint/prediction/robustness parameters;
+    with ``rp[R_ZETA]`` > 0 also at tau - zeta and tau + zeta (the paper's interval, sampled at
+    its ends). See :func:`rollout_kernel`."""
+    if not rollout_kernel(orb, table, cp, tp, rp, x0, t_k, tau, chief, chief_t0):
+        return False
+    zeta = rp[R_ZETA]
+    if zeta > 0.0:
+        return (rollout_kernel(orb, table, cp, tp, rp, x0, t_k, tau - zeta, chief, chief_t0)
+                and rollout_kernel(orb, table, cp, tp, rp, x0, t_k, tau + zeta, chief, chief_t0))
+    return True
+
+
+@nb.njit(cache=True)
+def robust_h1_ok(x: NDArray, xc: NDArray, cp: NDArray, sin_a: float, rho: float) -> bool:
+    """Every position within rho (km) of x lies in the LoS cone or inside the apex radius:
+    the distance of p = x - x_c to the cone's surface, |p| sin(alpha - theta), is >= rho
+    (theta: angle between p and -v_c); positions within apex - rho need no check."""
+    dot = 0.0
+    p2 = 0.0
+    vc2 = 0.0
+    for i in range(3):
+        p = x[i] - xc[i]
+        dot += xc[3 + i] * p
+        p2 += p * p
+        vc2 += xc[3 + i] * xc[3 + i]
+    pn = math.sqrt(p2)
+    if pn <= cp[C_APEX] - rho:
+        return True
+    if pn == 0.0:
+        return False
+    vn = math.sqrt(vc2)
+    c = -dot / (vn * pn)          # cos(theta)
+    s = math.sqrt(max(0.0, 1.0 - c * c))
+    return pn * (sin_a * c - cp[C_COS_ALPHA] * s) >= rho
+
+
+@nb.njit(cache=True)
+def robust_h3_ok(x: NDArray, xc: NDArray, cp: NDArray, rho: float, sig: float) -> bool:
+    """h3 holds for every state within rho (km) and sigma (km/s) of x (h3 is active wherever
+    |p| <= gamma1 may hold: |p| - rho <= gamma1)."""
+    p2 = 0.0
+    v2 = 0.0
+    for i in range(3):
+        p = x[i] - xc[i]
+        v = x[3 + i] - xc[3 + i]
+        p2 += p * p
+        v2 += v * v
+    lo = max(0.0, math.sqrt(p2) - rho)
+    if lo > cp[C_GAMMA1]:
+        return True
+    return math.sqrt(v2) + sig - cp[C_GAMMA2] * lo - cp[C_GAMMA3] <= 0.0
+
+
+@nb.njit(cache=True)
+def robust_terminal_ok(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, dp: float, dv: float,
+                       rho: float, sig: float) -> bool:
+    """The robust terminal test, once the prediction is in the nominal terminal set (dp, dv
+    from the virtual target x_v): the truth stays within dp + max(rho, rho_inf) and
+    dv + max(sigma, sigma_inf) of x_v, with rho_inf, sigma_inf the fixed points of the tube
+    recursion at x_v's range (the disturbance-invariant set of the tracking loop), and that
+    whole ball must satisfy h1 and h3 (docs/robustness.md, "terminal set")."""
+    rng = math.sqrt((xv[0] - xc[0]) ** 2 + (xv[1] - xc[1]) ** 2 + (xv[2] - xc[2]) ** 2)
+    bp = rp[R_NPF] + rp[R_NPG] * (rng + dp + rho)
+    bv = rp[R_NVF] + rp[R_NVG] * (rng + dp + rho)
+    ueff = min(cp[C_UMAX], rp[R_KP] * (dp + rho + bp) + rp[R_KV] * (dv + sig + bv))
+    eta = rp[R_EPSU] * ueff + rp[R_DMAX] + rp[R_KG] * (rng + dp + rho)
+    gain = 1.0 / (1.0 - rp[R_LAM])
+    rho_inf = gain * (rp[R_CPP] * bp + rp[R_CPV] * bv + rp[R_CPE] * eta)
+    sig_inf = gain * (rp[R_CVP] * bp + rp[R_CVV] * bv + rp[R_CVE] * eta)
+    big_r = dp + max(rho, rho_inf)
+    return (robust_h1_ok(xv, xc, cp, rp[R_SINA], big_r)
+            and robust_h3_ok(xv, xc, cp, big_r, dv + max(sig, sig_inf)))
+
+
+@nb.njit(cache=True)
+def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: NDArray,
+                   x0: NDArray, t_k: float, tau: float, chief: NDArray, chief_t0: float) -> bool:
+    """One prediction: Verify(x0, t_k, tau) for a single shift.
 
     ``chief`` (>= N_p, 7) caches the chief states x_c(chief_t0 + j T_s) (chief_t0 = t_k up to
     rounding; see :class:`ChiefCache`) and their eccentric anomalies, which do not depend on tau:
     a row whose anomaly is NaN is computed on first use and reused by every later Verify.
+    With ``rp[R_ON]`` the constraints and the terminal set are checked on the tube around the
+    prediction (module docstring).
     """
     ts = tp[T_SAMPLE]
     n = int(tp[T_NSAMPLES])
     sub = int(tp[T_SUBSTEPS])
+    j2r2 = tp[T_J2R2]
     tpos2 = tp[T_TERM_POS] ** 2
     tvel2 = tp[T_TERM_VEL] ** 2
     mu = orb[P_MU]
     e = orb[P_E]
     dm = orb[P_N] * ts  # mean-anomaly advance per sample
     u_max = cp[C_UMAX]
+    robust = rp[R_ON] != 0.0
     x = x0.copy()
     xv = np.empty(6)
     u = np.empty(3)
     kb = np.empty((3, 6))
     ev = 0.0
+    rho = 0.0
+    sig = 0.0
     for j in range(n):
         t = t_k + j * ts
         xc = chief[j]
         if xc[6] != xc[6]:  # NaN: not computed yet
             chief_row_kernel(orb, chief_t0 + j * ts, xc)
-        if h1_line_of_sight_kernel(x, xc, cp) > 0.0:
-            return False
-        if h3_approach_velocity_kernel(x, xc, cp) > 0.0:
-            return False
+        if robust:
+            rng = math.sqrt((x[0] - xc[0]) ** 2 + (x[1] - xc[1]) ** 2 + (x[2] - xc[2]) ** 2)
+            if j == 0:  # the measured state: off the truth by the navigation error
+                bp = rp[R_NPF] + rp[R_NPG] * rng
+                bv = rp[R_NVF] + rp[R_NVG] * rng
+                rho = rp[R_C0PP] * bp + rp[R_C0PV] * bv
+                sig = rp[R_C0VP] * bp + rp[R_C0VV] * bv
+            if not robust_h1_ok(x, xc, cp, rp[R_SINA], rho):
+                return False
+            if not robust_h3_ok(x, xc, cp, rho, sig):
+                return False
+        else:
+            if h1_line_of_sight_kernel(x, xc, cp) > 0.0:
+                return False
+            if h3_approach_velocity_kernel(x, xc, cp) > 0.0:
+                return False
         if j == 0:
             ev = eccentric_anomaly_kernel(orb[P_M0] + orb[P_N] * (t + tau), e)
             nu_v = state_from_anomaly_kernel(orb, ev, xv)
@@ -93,12 +205,25 @@ def verify_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray,
             dp2 += (x[i] - xv[i]) ** 2
             dv2 += (x[3 + i] - xv[3 + i]) ** 2
         if dp2 <= tpos2 and dv2 <= tvel2:
-            return True
+            if not robust or robust_terminal_ok(xv, xc, cp, rp, math.sqrt(dp2), math.sqrt(dv2),
+                                                rho, sig):
+                return True
         ftre_control_kernel(table, nu_v, x, xv, u_max, kb, u)
         # h2 holds by saturation up to rounding; checked so a changed control law cannot skip it.
         if h2_thrust_kernel(u, cp) > 1e-12 * u_max:
             return False
-        rk4_kernel(x, u, ts, sub, mu, x)
+        if robust:  # tubes at sample j + 1 (docs/robustness.md, "the tube recursion")
+            rr = rng + rho
+            bp = rp[R_NPF] + rp[R_NPG] * rr
+            bv = rp[R_NVF] + rp[R_NVG] * rr
+            un = math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
+            ueff = min(u_max, un + rp[R_KP] * (rho + bp) + rp[R_KV] * (sig + bv))
+            eta = rp[R_EPSU] * ueff + rp[R_DMAX] + rp[R_KG] * rr
+            lam = rp[R_LAM]
+            rho_next = lam * rho + rp[R_CPP] * bp + rp[R_CPV] * bv + rp[R_CPE] * eta
+            sig = lam * sig + rp[R_CVP] * bp + rp[R_CVV] * bv + rp[R_CVE] * eta
+            rho = rho_next
+        rk4_kernel(x, u, ts, sub, mu, x, j2r2)
     return False
 
 
@@ -149,7 +274,7 @@ class ChiefTable:
 
 
 @nb.njit(cache=True)
-def bisect_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, x0: NDArray, t_k: float,
+def bisect_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: NDArray, x0: NDArray, t_k: float,
                   lo_ns: int, hi_ns: int, tol_ns: int, chief: NDArray, chief_t0: float,
                   max_calls: int) -> tuple[int, int, int]:
     """Bisection on [lo, hi] (integer ns) with lo feasible (not re-verified) and hi infeasible.
@@ -164,7 +289,7 @@ def bisect_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, x0: ND
     while hi_ns - lo_ns > tol_ns and calls != max_calls:
         mid = (lo_ns + hi_ns) // 2
         calls += 1
-        if verify_kernel(orb, table, cp, tp, x0, t_k, mid / 1e9, chief, chief_t0):
+        if verify_kernel(orb, table, cp, tp, rp, x0, t_k, mid / 1e9, chief, chief_t0):
             lo_ns = mid
         else:
             hi_ns = mid
@@ -172,7 +297,7 @@ def bisect_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, x0: ND
 
 
 @nb.njit(cache=True)
-def first_feasible_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, x0: NDArray,
+def first_feasible_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: NDArray, x0: NDArray,
                           t_k: float, cands_ns: NDArray, lo_ns: int, budget: int, tol_ns: int,
                           chief: NDArray, chief_t0: float) -> tuple[int, int, int]:
     """Verify the candidates ``cands_ns`` (integer ns, in the order given) until one passes; if
@@ -183,28 +308,28 @@ def first_feasible_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray
     call for a learned update's whole search."""
     n = cands_ns.shape[0]
     for i in range(n):
-        if verify_kernel(orb, table, cp, tp, x0, t_k, cands_ns[i] / 1e9, chief, chief_t0):
+        if verify_kernel(orb, table, cp, tp, rp, x0, t_k, cands_ns[i] / 1e9, chief, chief_t0):
             return cands_ns[i], i, i + 1
     if budget == 0 or n == 0:
         return lo_ns, -1, n
-    tau, _, calls = bisect_kernel(orb, table, cp, tp, x0, t_k, lo_ns, cands_ns[n - 1], tol_ns,
+    tau, _, calls = bisect_kernel(orb, table, cp, tp, rp, x0, t_k, lo_ns, cands_ns[n - 1], tol_ns,
                                   chief, chief_t0, budget)
     return tau, -1, n + calls
 
 
 @nb.njit(cache=True)
-def conventional_update_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, x0: NDArray,
+def conventional_update_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: NDArray, x0: NDArray,
                                t_k: float, tau_prev_ns: int, tol_ns: int, chief: NDArray,
                                chief_t0: float) -> tuple[int, int]:
     """pi* over [tau_prev, 0] (tau_prev < 0, ns): zero test first, then bisection. (tau_ns, calls)."""
-    if verify_kernel(orb, table, cp, tp, x0, t_k, 0.0, chief, chief_t0):
+    if verify_kernel(orb, table, cp, tp, rp, x0, t_k, 0.0, chief, chief_t0):
         return 0, 1
-    tau, _, calls = bisect_kernel(orb, table, cp, tp, x0, t_k, tau_prev_ns, 0, tol_ns, chief, chief_t0, -1)
+    tau, _, calls = bisect_kernel(orb, table, cp, tp, rp, x0, t_k, tau_prev_ns, 0, tol_ns, chief, chief_t0, -1)
     return tau, calls + 1
 
 
 @nb.njit(cache=True)
-def initial_search_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, x0: NDArray,
+def initial_search_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: NDArray, x0: NDArray,
                           t0: float, window_ns: int, grid_ns: int, tol_ns: int, chief: NDArray,
                           chief_t0: float) -> tuple[int, int, bool]:
     """First-instant search (SPEC §5), times in integer ns. Returns (tau_ns, Verify calls, found).
@@ -225,10 +350,10 @@ def initial_search_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray
             best = m
     calls = 1
     m = best
-    if verify_kernel(orb, table, cp, tp, x0, t0, -m * grid_ns / 1e9, chief, chief_t0):
+    if verify_kernel(orb, table, cp, tp, rp, x0, t0, -m * grid_ns / 1e9, chief, chief_t0):
         while m > 0:  # walk toward 0 while feasible
             calls += 1
-            if not verify_kernel(orb, table, cp, tp, x0, t0, -(m - 1) * grid_ns / 1e9, chief, chief_t0):
+            if not verify_kernel(orb, table, cp, tp, rp, x0, t0, -(m - 1) * grid_ns / 1e9, chief, chief_t0):
                 break
             m -= 1
         if m == 0:
@@ -238,12 +363,12 @@ def initial_search_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray
         while m < n_grid:  # walk away from 0 until feasible
             m += 1
             calls += 1
-            if verify_kernel(orb, table, cp, tp, x0, t0, -m * grid_ns / 1e9, chief, chief_t0):
+            if verify_kernel(orb, table, cp, tp, rp, x0, t0, -m * grid_ns / 1e9, chief, chief_t0):
                 found = True
                 break
         if not found:
             return 0, calls, False
-    tau, _, c = bisect_kernel(orb, table, cp, tp, x0, t0, -m * grid_ns, -(m - 1) * grid_ns, tol_ns,
+    tau, _, c = bisect_kernel(orb, table, cp, tp, rp, x0, t0, -m * grid_ns, -(m - 1) * grid_ns, tol_ns,
                              chief, chief_t0, -1)
     return tau, calls + c, True
 
@@ -260,6 +385,7 @@ class Predictor:
     gains: NDArray      # (J+1, 3, 6) gain table
     cparams: NDArray    # packed constraint parameters
     tparams: NDArray    # packed prediction parameters
+    rparams: NDArray    # packed robustness parameters (cikan_ros.robust)
 
     @classmethod
     def from_config(cls, cfg: Config) -> "Predictor":
@@ -267,9 +393,24 @@ class Predictor:
         horizon = cfg.tsg.horizon_s if cfg.tsg.horizon_s > 0 else orbit.period
         n_samples = math.ceil(horizon / cfg.tsg.sample_period_s - 1e-9)
         tp = np.array([cfg.tsg.sample_period_s, n_samples, cfg.tsg.rk4_substeps,
-                       cfg.tsg.terminal_pos_km, cfg.tsg.terminal_vel_kmps], dtype=float)
+                       cfg.tsg.terminal_pos_km, cfg.tsg.terminal_vel_kmps,
+                       j2_coefficient(cfg.tsg.prediction_gravity)], dtype=float)
         return cls(cfg, orbit, gain_table(orbit, cfg.control),
-                   constraint_params(cfg.constraints, cfg.control.u_max_kmps2), tp)
+                   constraint_params(cfg.constraints, cfg.control.u_max_kmps2), tp,
+                   robust_params(cfg, orbit))
+
+    def nominal(self) -> "Predictor":
+        """This model with nominal Verify (robustness off): what decides which starts a
+        campaign flies, so nominal and robust Verify fly the same starts."""
+        if not self.rparams[R_ON]:
+            return self
+        return dataclasses.replace(self, rparams=robust_params(
+            self.config.replace(**{"tsg.robust": False}), self.orbit))
+
+    def with_orbit(self, orbit: KeplerOrbit) -> "Predictor":
+        """This model with another chief orbit (a re-anchored chief): same gains, constraints,
+        prediction and robustness parameters, a chief table of its own."""
+        return dataclasses.replace(self, orbit=orbit)
 
     @property
     def tol_ns(self) -> int:
@@ -331,7 +472,7 @@ class Predictor:
         """
         x, t = self._state(x_d, t)
         c = self._cache(t, cache)
-        return bool(verify_kernel(self.orbit.params, self.gains, self.cparams, self.tparams, x, t,
+        return bool(verify_kernel(self.orbit.params, self.gains, self.cparams, self.tparams, self.rparams, x, t,
                                   self._shift(tau, "tau"), c.rows, c.t0))
 
     def bisect(self, x_d: ArrayLike, t: float, lo: float, hi: float,
@@ -358,7 +499,7 @@ class Predictor:
         cands = np.array(ns, dtype=np.int64)
         c = self._cache(t, cache)
         tau_ns, index, calls = first_feasible_kernel(
-            self.orbit.params, self.gains, self.cparams, self.tparams, x, t, cands, lo_ns,
+            self.orbit.params, self.gains, self.cparams, self.tparams, self.rparams, x, t, cands, lo_ns,
             int(budget), self.tol_ns, c.rows, c.t0)
         return ns_to_seconds(tau_ns), int(index), int(calls)
 
@@ -372,7 +513,7 @@ class Predictor:
             raise StateError(f"bisection bracket is empty: lo = {lo} > hi = {hi}")
         c = self._cache(t, cache)
         lo_ns, hi_ns, calls = bisect_kernel(self.orbit.params, self.gains, self.cparams, self.tparams,
-                                            x, t, to_ns(lo), to_ns(hi), self.tol_ns, c.rows, c.t0,
+                                            self.rparams, x, t, to_ns(lo), to_ns(hi), self.tol_ns, c.rows, c.t0,
                                             -1 if budget is None else int(budget))
         return ns_to_seconds(lo_ns), ns_to_seconds(hi_ns), int(calls)
 
@@ -384,7 +525,7 @@ class Predictor:
             return 0.0, 0
         c = self.cache(t)
         tau, calls = conventional_update_kernel(self.orbit.params, self.gains, self.cparams,
-                                                self.tparams, x, t, to_ns(tau_prev), self.tol_ns,
+                                                self.tparams, self.rparams, x, t, to_ns(tau_prev), self.tol_ns,
                                                 c.rows, c.t0)
         return ns_to_seconds(tau), int(calls)
 
@@ -394,7 +535,7 @@ class Predictor:
         cfg = self.config.tsg
         c = self.cache(t)
         tau, calls, found = initial_search_kernel(self.orbit.params, self.gains, self.cparams,
-                                                  self.tparams, x, t, to_ns(cfg.initial_window_s),
+                                                  self.tparams, self.rparams, x, t, to_ns(cfg.initial_window_s),
                                                   to_ns(cfg.initial_grid_s), self.tol_ns, c.rows, c.t0)
         if not found:
             raise NoFeasibleShiftError(
@@ -402,3 +543,35 @@ class Predictor:
                 f"condition (deputy at {np.array2string(x[:3], precision=3)} km, t = {t:g} s): "
                 "the start is rejected")
         return ns_to_seconds(tau), int(calls)
+
+
+class ChiefAnchor:
+    """The chief of the prediction model, anchored on the chief state a governor or controller
+    receives (SPEC §2 takes it from the configured elements; a real chief drifts from them).
+
+    ``anchor(x_c, t)`` returns the :class:`Predictor` whose chief passes through the measured
+    x_c at t: the current one while the measurement stays within ``tsg.chief_anchor_tolerance_km``
+    of its chief (velocity: that tolerance per sample period), else a new one whose Kepler orbit
+    is the osculating orbit of x_c at t. Under the nominal truth the measured chief is the
+    configured one to rounding, so no update pays for a new chief table; each user (governor,
+    controller) holds its own anchor, so the offline loop and the ROS nodes anchor alike.
+    """
+
+    def __init__(self, predictor: Predictor) -> None:
+        self.base = predictor
+        self.current = predictor
+        self.re_anchors = 0
+        tol = predictor.config.tsg.chief_anchor_tolerance_km
+        self._tol = (tol, tol / predictor.config.tsg.sample_period_s)
+
+    def __call__(self, x_c: ArrayLike, t: float) -> Predictor:
+        x = np.asarray(x_c, dtype=float)
+        model = self.current.orbit.state(float(t))
+        dp = float(np.max(np.abs(x[:3] - model[:3])))
+        dv = float(np.max(np.abs(x[3:] - model[3:])))
+        if dp <= self._tol[0] and dv <= self._tol[1]:
+            return self.current
+        check_states(x, "chief state x_c")
+        self.current = self.base.with_orbit(KeplerOrbit.from_state(x, float(t), self.base.orbit.mu))
+        self.re_anchors += 1
+        return self.current

@@ -17,15 +17,27 @@ def add_config_args(parser: argparse.ArgumentParser) -> None:
     """``--config PATH`` and repeatable ``--set group.key=value`` (YAML value)."""
     parser.add_argument("--config", metavar="PATH", default=None,
                         help="ROS 2 params YAML file (default: the shipped config/cikan.yaml)")
+    parser.add_argument("--truth", metavar="NAME|FILE", default=None,
+                        help="truth model the simulator flies: nominal (default), realistic, or a "
+                             "YAML file with a truth group (config/truth/); docs/robustness.md")
+    parser.add_argument("--robust", action="store_true",
+                        help="robust Verify: tighten the constraints by the truth's declared "
+                             "error bounds (tsg.robust=true)")
     parser.add_argument("--set", metavar="KEY=VALUE", action="append", default=[], dest="overrides",
-                        help="override one parameter, e.g. --set tsg.tolerance_s=1e-4 (repeatable)")
+                        help="override one parameter, e.g. --set tsg.tolerance_s=1e-4 (repeatable; "
+                             "applied after --truth and --robust)")
 
 
 def config_from_args(args: argparse.Namespace) -> Config:
-    """The configuration named by ``--config`` with the ``--set`` overrides applied."""
-    from ..config import load_config
+    """The configuration named by ``--config`` with ``--truth``, ``--robust`` and then the
+    ``--set`` overrides applied."""
+    from ..config import load_config, truth_overrides
 
     overrides: dict[str, Any] = {}
+    if getattr(args, "truth", None) is not None:
+        overrides.update(truth_overrides(args.truth))
+    if getattr(args, "robust", False):
+        overrides["tsg.robust"] = True
     for item in args.overrides:
         key, sep, text = item.partition("=")
         if not sep or not key:

@@ -91,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
         governor = make_governor(args.governor, cfg)
         pred = governor.predictor
         x0 = nominal_start(pred) if args.seed is None else sample_start(pred, args.seed)
-        result = run_mission(governor, x0)
+        result = run_mission(governor, x0, args.seed)
         metrics = result.metrics()
         if governor.name != "conventional":  # fraction of consulted proposals that passed Verify
             from ..learn.governor import nn_accept_rate

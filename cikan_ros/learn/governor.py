@@ -52,7 +52,7 @@ from numpy.typing import ArrayLike
 from ..governor import (PATH_BISECT, PATH_INITIAL, PATH_KEEP, PATH_NN, PATH_NN_BISECT, PATH_PROBE,
                         PATH_VERIFY_ZERO, PATH_ZERO, UpdateRecord, initial_update, make_record,
                         start_clock, update_index)
-from ..tsg import ChiefCache, Predictor, quantise_shift
+from ..tsg import ChiefAnchor, ChiefCache, Predictor, quantise_shift
 from .arch import NumpyNet, log_shift_kernel
 from .features import FEATURE_CODES
 from .modelfile import LoadedModel, load_model
@@ -67,6 +67,7 @@ class LearnedGovernor:
     def __init__(self, net: NumpyNet, predictor: Predictor, name: str = "learned") -> None:
         self.net = net
         self.predictor = predictor
+        self.anchor = ChiefAnchor(predictor)
         self.name = name
         self._z = np.empty((1, net.arch.n_in))
         self._code = FEATURE_CODES[net.arch.features]
@@ -92,7 +93,7 @@ class LearnedGovernor:
         return quantise_shift(-math.exp(y))
 
     def initial(self, x_d: ArrayLike, x_c: ArrayLike, t: float) -> UpdateRecord:
-        return initial_update(self.predictor, x_d, t)
+        return initial_update(self.anchor, x_d, x_c, t)
 
     def update(self, x_d: ArrayLike, x_c: ArrayLike, t: float, tau_prev: float) -> UpdateRecord:
         started = start_clock()
@@ -101,20 +102,22 @@ class LearnedGovernor:
         if tau_prev == 0.0:
             return make_record(started, 0.0, PATH_ZERO, 0, k, tau_prev)
         tau_c = self.proposal(x_d, x_c, tau_prev)
+        pred = self.anchor(x_c, t)
         if pred.config.learned.algorithm == "paper":
-            tau, path, calls, cache = self._paper(x_d, t, tau_prev, tau_c)
+            tau, path, calls, cache = self._paper(pred, x_d, t, tau_prev, tau_c)
         else:
-            tau, path, calls, cache = self._keep(x_d, t, tau_prev, tau_c, k)
+            tau, path, calls, cache = self._keep(pred, x_d, t, tau_prev, tau_c, k)
         if tau < 0.0 and -tau <= pred.config.tsg.zero_snap_s:
             calls += 1
             if pred.verify(x_d, t, 0.0, cache or pred.cache(t)):
                 tau, path = 0.0, PATH_VERIFY_ZERO
         return make_record(started, tau, path, calls, k, tau_prev)
 
-    def _paper(self, x_d: ArrayLike, t: float, tau_prev: float, tau_c: float
+    @staticmethod
+    def _paper(pred: Predictor, x_d: ArrayLike, t: float, tau_prev: float, tau_c: float
                ) -> tuple[float, str, int, ChiefCache]:
-        """The paper's Algorithm 1 (without the zero test): (τ, path, Verify calls, chief cache)."""
-        pred = self.predictor
+        """The paper's Algorithm 1 (without the zero test) with the anchored model ``pred``:
+        (τ, path, Verify calls, chief cache)."""
         cache = pred.cache(t)  # chief states along the horizon, shared by this update's predictions
         if tau_prev <= tau_c <= 0.0:
             if pred.verify(x_d, t, tau_c, cache):
@@ -124,10 +127,10 @@ class LearnedGovernor:
         tau, c = pred.bisect(x_d, t, tau_prev, 0.0, cache)
         return tau, PATH_BISECT, c, cache
 
-    def _keep(self, x_d: ArrayLike, t: float, tau_prev: float, tau_c: float, k: int
-              ) -> tuple[float, str, int, ChiefCache | None]:
-        """The keep rule (without the zero test): (τ, path, Verify calls, chief cache or None)."""
-        pred = self.predictor
+    def _keep(self, pred: Predictor, x_d: ArrayLike, t: float, tau_prev: float, tau_c: float,
+              k: int) -> tuple[float, str, int, ChiefCache | None]:
+        """The keep rule (without the zero test) with the anchored model ``pred``: (τ, path,
+        Verify calls, chief cache or None)."""
         lc = pred.config.learned
         scheduled = k % lc.probe_every == 0
         candidates = self.candidates(tau_c, tau_prev)

@@ -1,0 +1,123 @@
+"""Robust Verify's error tube: what the declared error bounds can do to the closed loop.
+
+The derivation is in docs/robustness.md; in short, with e_j = truth - prediction at sample j of a
+Verify rollout, the FTRE closed loop (unsaturated, frozen at the virtual target's anomaly) gives
+
+    e_{j+1} = Phi e_j - B_d K delta_j + B_d eta_j,     Phi = A_d - B_d K,   e_0 = -delta_0
+
+with delta_j the navigation error of the state the controller sees (|delta_p| <= b_p(r),
+|delta_v| <= b_v(r), r the range) and eta_j the unknown acceleration: thruster magnitude and
+pointing errors (|eta_u| <= eps_u |u|), the process disturbance (<= d_max) and the unmodelled J2
+difference between deputy and chief (<= k_g r). Every block X Phi^m Y of the transition matrix
+decays like lam^m (lam = the largest closed-loop eigenvalue modulus over the gain table), so with
+C_XY = max_m |X Phi^m Y|_2 / lam^m the position and velocity errors obey the scalar recursions
+
+    rho_{j+1}   = lam rho_j   + C_pp b_p + C_pv b_v + C_pe eta_j
+    sigma_{j+1} = lam sigma_j + C_vp b_p + C_vv b_v + C_ve eta_j
+
+from rho_0 = C0_pp b_p + C0_pv b_v (sigma_0 likewise): the tube radii that robust Verify carries
+along its rollout (:func:`cikan_ros.tsg.rollout_kernel`). Here "p" rows are the position block,
+"v" the velocity block; the forcing columns are B_d K restricted to position or velocity errors
+(navigation) and B_d (accelerations).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .config import Config, ControlConfig, TruthConfig
+from .control import B_INPUT, gain_table, zoh_discretise
+from .dynamics import J2_EARTH, R_EARTH_KM, linearisation
+from .orbit import KeplerOrbit, elements_to_state
+
+# Layout of the packed robustness parameters (``Predictor.rparams``).
+(R_ON, R_LAM, R_C0PP, R_C0PV, R_C0VP, R_C0VV, R_CPP, R_CPV, R_CPE, R_CVP, R_CVV, R_CVE, R_KP, R_KV,
+ R_NPF, R_NPG, R_NVF, R_NVG, R_EPSU, R_DMAX, R_KG, R_SINA, R_ZETA) = range(23)
+N_RPARAMS = 23
+
+#: Powers of the closed-loop matrix scanned for the constants C (lam^400 < 1e-22 here).
+N_POWERS = 400
+#: True anomalies (deg) of the gain table at which the closed loop is analysed.
+ANALYSIS_STEP_DEG = 5.0
+
+
+@functools.lru_cache(maxsize=8)
+def tube_constants(orbit: KeplerOrbit, cfg: ControlConfig) -> dict[str, float]:
+    """lam, the C constants and the gain norms |K_p|, |K_v| of the FTRE closed loop, each the
+    worst over the chief orbit's true anomaly (frozen-time analysis, every ANALYSIS_STEP_DEG)."""
+    table = gain_table(orbit, cfg)
+    n_cells = table.shape[0] - 1
+    stride = max(1, round(ANALYSIS_STEP_DEG / cfg.grid_deg))
+    p, v = np.hstack([np.eye(3), np.zeros((3, 3))]), np.hstack([np.zeros((3, 3)), np.eye(3)])
+    out = {k: 0.0 for k in ("lam", "c0pp", "c0pv", "c0vp", "c0vv", "cpp", "cpv", "cpe", "cvp",
+                            "cvv", "cve", "kp", "kv")}
+    systems = []
+    for j in range(0, n_cells, stride):
+        nu = 2.0 * math.pi * j / n_cells
+        r = elements_to_state(orbit.a, orbit.e, orbit.i, orbit.raan, orbit.argp, nu, orbit.mu)[:3]
+        a_d, b_d = zoh_discretise(linearisation(r, orbit.mu), B_INPUT, cfg.period_s)
+        k = table[j]
+        phi = a_d - b_d @ k
+        systems.append((phi, b_d, k))
+        out["lam"] = max(out["lam"], float(np.max(np.abs(np.linalg.eigvals(phi)))))
+        out["kp"] = max(out["kp"], float(np.linalg.norm(k[:, :3], 2)))
+        out["kv"] = max(out["kv"], float(np.linalg.norm(k[:, 3:], 2)))
+    lam = out["lam"] = min(out["lam"] * (1.0 + 1e-6), 1.0 - 1e-9)
+    if not lam < 1.0:  # pragma: no cover - the DARE gains stabilise the loop
+        raise ValueError("the FTRE closed loop is not stable: no error tube exists")
+    for phi, b_d, k in systems:
+        bk = b_d @ k
+        inputs = {"0p": p.T, "0v": v.T, "p": bk[:, :3], "v": bk[:, 3:], "e": b_d}
+        power = np.eye(6)
+        for m in range(N_POWERS):
+            scale = lam ** m
+            for row, rows in (("p", p), ("v", v)):
+                block = rows @ power
+                for col, mat in inputs.items():
+                    key = f"c0{row}{col[1]}" if col.startswith("0") else f"c{row}{col}"
+                    out[key] = max(out[key], float(np.linalg.norm(block @ mat, 2)) / scale)
+            power = phi @ power
+    return out
+
+
+def j2_gradient_bound(r_min_km: float, mu: float) -> float:
+    """An upper bound (1/s^2) of |d a_J2 / d r|_2 for |r| >= r_min: the J2 part of the gravity
+    gradient, whose largest eigenvalue modulus is at most 12 J2 mu R^2 / r^5 (a factor 2 above
+    the largest value on the sphere, which is below 6 J2 mu R^2 / r^5; tested in test_robust)."""
+    return 12.0 * J2_EARTH * mu * R_EARTH_KM ** 2 / r_min_km ** 5
+
+
+def robust_params(cfg: Config, orbit: KeplerOrbit) -> NDArray:
+    """The packed robustness parameters (layout ``R_*``): zeros (with the cone's sin alpha and
+    zeta) when ``tsg.robust`` is off, else the tube constants and the declared bounds."""
+    rp = np.zeros(N_RPARAMS)
+    rp[R_SINA] = math.sin(math.radians(cfg.constraints.los_half_angle_deg))
+    rp[R_ZETA] = cfg.tsg.robust_zeta_s
+    if not cfg.tsg.robust:
+        return rp
+    tc = tube_constants(orbit, cfg.control)
+    truth: TruthConfig = cfg.truth
+    rp[R_ON] = 1.0
+    rp[R_LAM] = tc["lam"]
+    for name, idx in (("c0pp", R_C0PP), ("c0pv", R_C0PV), ("c0vp", R_C0VP), ("c0vv", R_C0VV),
+                      ("cpp", R_CPP), ("cpv", R_CPV), ("cpe", R_CPE), ("cvp", R_CVP),
+                      ("cvv", R_CVV), ("cve", R_CVE), ("kp", R_KP), ("kv", R_KV)):
+        rp[idx] = tc[name]
+    rp[R_NPF] = truth.bound("nav_pos_floor_km")
+    rp[R_NPG] = truth.bound("nav_pos_range_fraction")
+    rp[R_NVF] = truth.bound("nav_vel_floor_kmps")
+    rp[R_NVG] = truth.bound("nav_vel_range_fraction_per_s")
+    bias = truth.bound("thrust_bias_max")
+    point = math.radians(truth.bound("thrust_pointing_max_deg"))
+    rp[R_EPSU] = bias + (1.0 + bias) * 2.0 * math.sin(point / 2.0)
+    rp[R_DMAX] = truth.bound("disturbance_max_kmps2")
+    if truth.gravity != cfg.tsg.prediction_gravity:
+        # The deputy and the chief stay above the chief's perigee less the start's spread.
+        r_min = orbit.a * (1.0 - orbit.e) - 200.0
+        rp[R_KG] = j2_gradient_bound(r_min, orbit.mu)
+    rp.setflags(write=False)
+    return rp
