@@ -139,7 +139,6 @@ class TSGConfig:
     robust: bool = False
     robust_zeta_s: float = 0.0
     chief_anchor_tolerance_km: float = 1e-6
-    prediction_gravity: str = "two-body"
 
     def __post_init__(self) -> None:
         _check(isinstance(self.robust, bool), "tsg.robust", self.robust, "must be true or false")
@@ -147,8 +146,6 @@ class TSGConfig:
                "tsg.robust_zeta_s", self.robust_zeta_s, "must lie in [0, 60] s")
         _check(math.isfinite(self.chief_anchor_tolerance_km) and self.chief_anchor_tolerance_km >= 0,
                "tsg.chief_anchor_tolerance_km", self.chief_anchor_tolerance_km, "must be finite and >= 0")
-        _check(self.prediction_gravity in GRAVITY_MODELS, "tsg.prediction_gravity",
-               self.prediction_gravity, f"must be one of {GRAVITY_MODELS}")
         for name in ("sample_period_s", "terminal_pos_km", "terminal_vel_kmps", "tolerance_s",
                      "initial_window_s", "initial_grid_s", "update_period_s"):
             _positive(f"tsg.{name}", getattr(self, name))
@@ -209,8 +206,10 @@ class TruthConfig:
     nav_vel_floor_kmps: float = 0.0
     nav_vel_range_fraction_per_s: float = 0.0
     nav_correlation_s: float = 300.0
+    nav_rate_per_s: float = 0.02
 
     def __post_init__(self) -> None:
+        _positive("truth.nav_rate_per_s", self.nav_rate_per_s)
         _check(isinstance(self.name, str) and self.name != "", "truth.name", self.name,
                "must be a non-empty string")
         _check(self.gravity in GRAVITY_MODELS, "truth.gravity", self.gravity,
@@ -235,9 +234,14 @@ class TruthConfig:
         return self.scale * float(getattr(self, name))
 
     @property
+    def effective_gravity(self) -> str:
+        """The gravity the truth flies: ``gravity``, but two-body at scale 0 (the nominal model)."""
+        return self.gravity if self.scale > 0 else "two-body"
+
+    @property
     def is_nominal(self) -> bool:
         """True when the truth equals the prediction model (two-body, every bound 0)."""
-        return self.gravity == "two-body" and all(
+        return self.effective_gravity == "two-body" and all(
             self.bound(n) == 0.0 for n in ("thrust_bias_max", "thrust_pointing_max_deg",
                                            "disturbance_max_kmps2", "nav_pos_floor_km",
                                            "nav_pos_range_fraction", "nav_vel_floor_kmps",

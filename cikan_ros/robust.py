@@ -35,12 +35,13 @@ from .dynamics import J2_EARTH, R_EARTH_KM, linearisation
 from .orbit import KeplerOrbit, elements_to_state
 
 # Layout of the packed robustness parameters (``Predictor.rparams``).
-(R_ON, R_LAM, R_C0PP, R_C0PV, R_C0VP, R_C0VV, R_CPP, R_CPV, R_CPE, R_CVP, R_CVV, R_CVE, R_KP, R_KV,
- R_NPF, R_NPG, R_NVF, R_NVG, R_EPSU, R_DMAX, R_KG, R_SINA, R_ZETA) = range(23)
-N_RPARAMS = 23
+(R_ON, R_LAM, R_C0PP, R_C0PV, R_C0VP, R_C0VV, R_DPP, R_DPV, R_CPE, R_DVP, R_DVV, R_CVE, R_KP, R_KV,
+ R_NPF, R_NPG, R_NVF, R_NVG, R_EPSU, R_DMAX, R_KG, R_SINA, R_ZETA, R_GRAD, R_GPP, R_GPV, R_GVP,
+ R_GVV, R_NRATE, R_J2DIFF) = range(30)
+N_RPARAMS = 30
 
-#: Powers of the closed-loop matrix scanned for the constants C (lam^400 < 1e-22 here).
-N_POWERS = 400
+#: Powers of the closed-loop matrix scanned for the constants C (lam^200 < 1e-11 here).
+N_POWERS = 200
 #: True anomalies (deg) of the gain table at which the closed loop is analysed.
 ANALYSIS_STEP_DEG = 5.0
 
@@ -53,8 +54,9 @@ def tube_constants(orbit: KeplerOrbit, cfg: ControlConfig) -> dict[str, float]:
     n_cells = table.shape[0] - 1
     stride = max(1, round(ANALYSIS_STEP_DEG / cfg.grid_deg))
     p, v = np.hstack([np.eye(3), np.zeros((3, 3))]), np.hstack([np.zeros((3, 3)), np.eye(3)])
-    out = {k: 0.0 for k in ("lam", "c0pp", "c0pv", "c0vp", "c0vv", "cpp", "cpv", "cpe", "cvp",
-                            "cvv", "cve", "kp", "kv")}
+    keys = ("lam", "kp", "kv") + tuple(f"{c}{row}{col}" for c in ("c0", "g", "d")
+                                        for row in "pv" for col in "pv") + ("cpe", "cve")
+    out = {k: 0.0 for k in keys}
     systems = []
     for j in range(0, n_cells, stride):
         nu = 2.0 * math.pi * j / n_cells
@@ -69,19 +71,34 @@ def tube_constants(orbit: KeplerOrbit, cfg: ControlConfig) -> dict[str, float]:
     lam = out["lam"] = min(out["lam"] * (1.0 + 1e-6), 1.0 - 1e-9)
     if not lam < 1.0:  # pragma: no cover - the DARE gains stabilise the loop
         raise ValueError("the FTRE closed loop is not stable: no error tube exists")
+    rows = {"p": np.hstack([np.eye(3), np.zeros((3, 3))]), "v": np.hstack([np.zeros((3, 3)), np.eye(3)])}
+
+    def worst(key: str, value: float) -> None:
+        out[key] = max(out[key], value)
+
+    scale = lam ** -np.arange(N_POWERS + 1.0)
     for phi, b_d, k in systems:
         bk = b_d @ k
-        inputs = {"0p": p.T, "0v": v.T, "p": bk[:, :3], "v": bk[:, 3:], "e": b_d}
-        power = np.eye(6)
-        for m in range(N_POWERS):
-            scale = lam ** m
-            for row, rows in (("p", p), ("v", v)):
-                block = rows @ power
-                for col, mat in inputs.items():
-                    key = f"c0{row}{col[1]}" if col.startswith("0") else f"c{row}{col}"
-                    out[key] = max(out[key], float(np.linalg.norm(block @ mat, 2)) / scale)
-            power = phi @ power
+        powers = np.empty((N_POWERS + 2, 6, 6))
+        powers[0] = np.eye(6)
+        for m in range(N_POWERS + 1):
+            powers[m + 1] = phi @ powers[m]
+        # DC response to a constant navigation error: sum_l Phi^l B K = (I - Phi)^-1 B K, and
+        # what is left of it after m steps: D_m = sum_{l > m} Phi^l B K = Phi^(m+1) (I - Phi)^-1 B K.
+        dc = np.linalg.solve(np.eye(6) - phi, bk)
+        for row, rmat in rows.items():
+            rp_ = rmat @ powers  # (N + 2, 3, 6)
+            for col, cols in (("p", slice(0, 3)), ("v", slice(3, 6))):
+                worst(f"g{row}{col}", float(np.linalg.norm(rmat @ dc[:, cols], 2)))
+                worst(f"d{row}{col}", float(np.max(norms(rp_[1:] @ dc[:, cols]) * scale)))
+                worst(f"c0{row}{col}", float(np.max(norms(rp_[:-1][:, :, cols]) * scale)))
+            worst(f"c{row}e", float(np.max(norms(rp_[:-1] @ b_d) * scale)))
     return out
+
+
+def norms(mats: NDArray) -> NDArray:
+    """Spectral norms of a stack of matrices (..., r, c)."""
+    return np.linalg.norm(mats, 2, axis=(-2, -1))
 
 
 def j2_gradient_bound(r_min_km: float, mu: float) -> float:
@@ -104,9 +121,11 @@ def robust_params(cfg: Config, orbit: KeplerOrbit) -> NDArray:
     rp[R_ON] = 1.0
     rp[R_LAM] = tc["lam"]
     for name, idx in (("c0pp", R_C0PP), ("c0pv", R_C0PV), ("c0vp", R_C0VP), ("c0vv", R_C0VV),
-                      ("cpp", R_CPP), ("cpv", R_CPV), ("cpe", R_CPE), ("cvp", R_CVP),
-                      ("cvv", R_CVV), ("cve", R_CVE), ("kp", R_KP), ("kv", R_KV)):
+                      ("dpp", R_DPP), ("dpv", R_DPV), ("cpe", R_CPE), ("dvp", R_DVP),
+                      ("dvv", R_DVV), ("cve", R_CVE), ("kp", R_KP), ("kv", R_KV),
+                      ("gpp", R_GPP), ("gpv", R_GPV), ("gvp", R_GVP), ("gvv", R_GVV)):
         rp[idx] = tc[name]
+    rp[R_NRATE] = truth.nav_rate_per_s
     rp[R_NPF] = truth.bound("nav_pos_floor_km")
     rp[R_NPG] = truth.bound("nav_pos_range_fraction")
     rp[R_NVF] = truth.bound("nav_vel_floor_kmps")
@@ -115,9 +134,16 @@ def robust_params(cfg: Config, orbit: KeplerOrbit) -> NDArray:
     point = math.radians(truth.bound("thrust_pointing_max_deg"))
     rp[R_EPSU] = bias + (1.0 + bias) * 2.0 * math.sin(point / 2.0)
     rp[R_DMAX] = truth.bound("disturbance_max_kmps2")
-    if truth.gravity != cfg.tsg.prediction_gravity:
-        # The deputy and the chief stay above the chief's perigee less the start's spread.
+    # Bound of the gravity gradient (norm 2 mu / r^3) at the lowest radius the deputy reaches.
+    rp[R_GRAD] = 3.0 * orbit.mu / (orbit.a * (1.0 - orbit.e) - 200.0) ** 3
+    if truth.effective_gravity == "j2":
+        # Robust Verify models what it declares: the deputy's prediction adds the J2 difference
+        # a_J2(deputy) - a_J2(chief) of sample j, held over the sample like the thrust; what is
+        # left is its change within a sample (the chief moves <= 100 km per 10 s: the gradient
+        # changes by < 10 %), bounded by a tenth of the J2 gradient's bound at the lowest radius
+        # (the deputy and the chief stay above the chief's perigee less the start's spread).
+        rp[R_J2DIFF] = 1.5 * J2_EARTH * R_EARTH_KM ** 2
         r_min = orbit.a * (1.0 - orbit.e) - 200.0
-        rp[R_KG] = j2_gradient_bound(r_min, orbit.mu)
+        rp[R_KG] = 0.1 * j2_gradient_bound(r_min, orbit.mu)
     rp.setflags(write=False)
     return rp

@@ -14,7 +14,7 @@ same seed gives the same run, in the offline loop and in sim_node alike):
 - a navigation error on the deputy's state, what a relative-navigation filter outputs: a
   Gauss-Markov vector per position and velocity (correlation ``truth.nav_correlation_s``),
   scaled by the bounds b_p(r) = floor + fraction r (velocity likewise) at the true range r and
-  clipped to them. The chief's own state is measured exactly (its absolute navigation error is
+  clipped to them, changing by at most ``truth.nav_rate_per_s`` of the bound per second. The chief's own state is measured exactly (its absolute navigation error is
   common to both spacecraft and not modelled).
 
 Every bound is the configured one times ``truth.scale``; the Gauss-Markov processes have a
@@ -38,18 +38,24 @@ from .orbit import KeplerOrbit
 TRUTH_STREAM = 0x7472757468
 
 
-def gauss_markov(rng: np.random.Generator, n: int, dt: float, corr_s: float) -> NDArray:
-    """n samples (n, 3) of a stationary first-order Gauss-Markov vector with standard deviation
-    1/3 per axis and correlation time corr_s, clipped to norm <= 1."""
+def gauss_markov(rng: np.random.Generator, n: int, dt: float, corr_s: float,
+                 max_step: float = math.inf) -> NDArray:
+    """n samples (n, 3) of a first-order Gauss-Markov vector with standard deviation 1/3 per
+    axis and correlation time corr_s (stationary start), kept in the unit ball and, when
+    ``max_step`` is finite, changing by at most ``max_step`` per sample (a smooth process)."""
     phi = math.exp(-dt / corr_s)
     w = rng.normal(0.0, 1.0 / 3.0, (n, 3))
     out = np.empty((n, 3))
-    out[0] = w[0]
     q = math.sqrt(1.0 - phi * phi)
+    out[0] = w[0] / max(1.0, float(np.linalg.norm(w[0])))
     for k in range(1, n):
-        out[k] = phi * out[k - 1] + q * w[k]
-    norm = np.linalg.norm(out, axis=1, keepdims=True)
-    return out / np.maximum(norm, 1.0)
+        step = phi * out[k - 1] + q * w[k] - out[k - 1]
+        size = float(np.linalg.norm(step))
+        if size > max_step:
+            step *= max_step / size
+        nxt = out[k - 1] + step
+        out[k] = nxt / max(1.0, float(np.linalg.norm(nxt)))  # projection: |change| stays bounded
+    return out
 
 
 def rotation(axis: NDArray, angle: float) -> NDArray:
@@ -70,10 +76,10 @@ class Truth:
         self.n_steps = n_steps if n_steps is not None else round(cfg.mission.duration_s / self.period)
         self.nominal = tc.is_nominal
         self.orbit = KeplerOrbit.from_config(cfg.orbit)
-        self.plant = Plant(self.orbit.mu, cfg.mission.plant_substeps, gravity=tc.gravity)
+        self.plant = Plant(self.orbit.mu, cfg.mission.plant_substeps, gravity=tc.effective_gravity)
         n = self.n_steps + 1
         times = np.array([k * self.period for k in range(n)])
-        if tc.gravity == "two-body":
+        if tc.effective_gravity == "two-body":
             self.chief = self.orbit.state(times)
         else:
             self.chief = np.empty((n, 6))
@@ -89,8 +95,9 @@ class Truth:
         self.thrust_matrix = (1.0 + self.bias) * rotation(axis, self.pointing_rad)
         self.disturbance = tc.bound("disturbance_max_kmps2") * gauss_markov(
             rng, n, self.period, tc.disturbance_correlation_s)
-        self.nav_pos = gauss_markov(rng, n, self.period, tc.nav_correlation_s)
-        self.nav_vel = gauss_markov(rng, n, self.period, tc.nav_correlation_s)
+        step = tc.nav_rate_per_s * self.period
+        self.nav_pos = gauss_markov(rng, n, self.period, tc.nav_correlation_s, step)
+        self.nav_vel = gauss_markov(rng, n, self.period, tc.nav_correlation_s, step)
 
     @property
     def max_thrust_factor(self) -> float:

@@ -39,13 +39,14 @@ from numpy.typing import ArrayLike, NDArray
 from .config import Config
 from .constraints import (C_APEX, C_COS_ALPHA, C_GAMMA1, C_GAMMA2, C_GAMMA3, C_UMAX, constraint_params, h1_line_of_sight_kernel, h2_thrust_kernel,
                           h3_approach_velocity_kernel)
-from .control import ftre_control_kernel, gain_table
-from .dynamics import j2_coefficient, rk4_kernel
+from .control import ftre_control_kernel, gain_table, interpolate_gain_kernel, saturate_kernel
+from .dynamics import j2_part_kernel, rk4_kernel
 from .errors import NoFeasibleShiftError, StateError
 from .orbit import (P_E, P_M0, P_MU, P_N, KeplerOrbit, check_states, eccentric_anomaly_kernel,
                     state_from_anomaly_kernel, state_kernel, state_warm_kernel)
-from .robust import (R_C0PP, R_C0PV, R_C0VP, R_C0VV, R_CPE, R_CPP, R_CPV, R_CVE, R_CVP, R_CVV,
-                     R_DMAX, R_EPSU, R_KG, R_KP, R_KV, R_LAM, R_NPF, R_NPG, R_NVF, R_NVG, R_ON,
+from .robust import (R_C0PP, R_C0PV, R_C0VP, R_C0VV, R_CPE, R_CVE, R_DPP, R_DPV, R_DVP, R_DVV,
+                     R_GPP, R_GPV, R_GVP, R_GVV, R_J2DIFF, R_NRATE,
+                     R_DMAX, R_EPSU, R_GRAD, R_KG, R_KP, R_KV, R_LAM, R_NPF, R_NPG, R_NVF, R_NVG, R_ON,
                      R_SINA, R_ZETA, robust_params)
 from .units import ns_to_seconds
 from .units import seconds_to_ns as to_ns
@@ -56,6 +57,7 @@ def quantise_shift(tau: float) -> float:
 
 
 # Layout of the packed prediction parameters.
+# T_J2R2: 3/2 J2 R^2 of the prediction's gravity (0: two-body, the prediction model here).
 T_SAMPLE, T_NSAMPLES, T_SUBSTEPS, T_TERM_POS, T_TERM_VEL, T_J2R2 = range(6)
 
 
@@ -124,21 +126,75 @@ def robust_h3_ok(x: NDArray, xc: NDArray, cp: NDArray, rho: float, sig: float) -
 
 
 @nb.njit(cache=True)
+def nav_terms(rp: NDArray, rng: float, vrel: float, ts: float) -> tuple[float, float, float, float]:
+    """Navigation error bounds b_p (km), b_v (km/s) at range rng (km) and the bounds of their
+    change over one sample, Delta_p, Delta_v (the error's rate bound plus the change of the
+    bound with the range, at most (vrel) ts)."""
+    bp = rp[R_NPF] + rp[R_NPG] * rng
+    bv = rp[R_NVF] + rp[R_NVG] * rng
+    k = min(2.0, rp[R_NRATE] * ts)
+    return bp, bv, k * bp + rp[R_NPG] * vrel * ts, k * bv + rp[R_NVG] * vrel * ts
+
+
+@nb.njit(cache=True)
+def tube_step(rp: NDArray, u_max: float, ts: float, rng: float, vrel: float, rho: float,
+              sig: float, big_r: float, big_s: float, linear: bool, a_n: float, un: float
+              ) -> tuple[float, float, float, float, bool]:
+    """The tube from sample j to j + 1: (rho, sigma, R, S, linear) after the step.
+
+    rho, sigma bound the position (km) and velocity (km/s) error at j; rng, vrel are the
+    predicted range (km) and relative speed (km/s), a_n the unsaturated and un the saturated
+    command magnitude (km/s^2); m = |K_p| (rho + b_p) + |K_v| (sigma + b_v) bounds how far the
+    command of a state in the tube may differ from the prediction's.
+    - Unless every state of the tube saturates (a_n - m < u_max): the closed loop. The error is
+      the navigation error's DC response G (b_p, b_v) plus R, S that decay like lam^m:
+      R' = lam R + D (Delta_p, Delta_v) + C_e eta, entered from (rho, sigma) through the C0
+      constants (and D (b_p, b_v): the navigation error taken as a fresh step); and never more
+      than the open double integrator with |Delta u| <= 2 u_max allows.
+    - Every state saturates: the feedback acts only across the thrust direction, with the gain
+      u_max / |a| < 1 (the projection onto the thrust ball), and not at all along it; the error
+      then propagates as an open double integrator under the unknown accelerations, the
+      direction error the navigation error causes, u_max (|K_p| b_p + |K_v| b_v) / (a_n - m),
+      and the gravity gradient's bound g rho.
+    docs/robustness.md states which of these steps are bounds and which approximations.
+    """
+    rr = rng + rho
+    bp, bv, dp, dv = nav_terms(rp, rr, vrel + sig, ts)
+    m = rp[R_KP] * (rho + bp) + rp[R_KV] * (sig + bv)
+    eta = rp[R_EPSU] * min(u_max, un + m) + rp[R_DMAX] + rp[R_KG] * rr
+    if a_n - m < u_max:
+        if not linear:
+            big_r = (rp[R_C0PP] * rho + rp[R_C0PV] * sig) + (rp[R_DPP] * bp + rp[R_DPV] * bv)
+            big_s = (rp[R_C0VP] * rho + rp[R_C0VV] * sig) + (rp[R_DVP] * bp + rp[R_DVV] * bv)
+        lam = rp[R_LAM]
+        big_r = lam * big_r + rp[R_DPP] * dp + rp[R_DPV] * dv + rp[R_CPE] * eta
+        big_s = lam * big_s + rp[R_DVP] * dp + rp[R_DVV] * dv + rp[R_CVE] * eta
+        # Whatever the loop does, the commands differ by at most 2 u_max: the open double
+        # integrator bounds the error too, and is the smaller bound while the tube is wide.
+        du = 2.0 * u_max + eta + rp[R_GRAD] * rho
+        return (min(big_r + rp[R_GPP] * bp + rp[R_GPV] * bv, rho + ts * sig + 0.5 * ts * ts * du),
+                min(big_s + rp[R_GVP] * bp + rp[R_GVV] * bv, sig + ts * du), big_r, big_s, True)
+    du = u_max * (rp[R_KP] * bp + rp[R_KV] * bv) / (a_n - m) + eta + rp[R_GRAD] * rho
+    return (rho + ts * sig + 0.5 * ts * ts * du, sig + ts * du, big_r, big_s, False)
+
+
+@nb.njit(cache=True)
 def robust_terminal_ok(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, dp: float, dv: float,
-                       rho: float, sig: float) -> bool:
+                       rho: float, sig: float, ts: float) -> bool:
     """The robust terminal test, once the prediction is in the nominal terminal set (dp, dv
     from the virtual target x_v): the truth stays within dp + max(rho, rho_inf) and
     dv + max(sigma, sigma_inf) of x_v, with rho_inf, sigma_inf the fixed points of the tube
     recursion at x_v's range (the disturbance-invariant set of the tracking loop), and that
     whole ball must satisfy h1 and h3 (docs/robustness.md, "terminal set")."""
-    rng = math.sqrt((xv[0] - xc[0]) ** 2 + (xv[1] - xc[1]) ** 2 + (xv[2] - xc[2]) ** 2)
-    bp = rp[R_NPF] + rp[R_NPG] * (rng + dp + rho)
-    bv = rp[R_NVF] + rp[R_NVG] * (rng + dp + rho)
+    rng = math.sqrt((xv[0] - xc[0]) ** 2 + (xv[1] - xc[1]) ** 2 + (xv[2] - xc[2]) ** 2) + dp + rho
+    bp, bv, d_p, d_v = nav_terms(rp, rng, dv + sig, ts)
     ueff = min(cp[C_UMAX], rp[R_KP] * (dp + rho + bp) + rp[R_KV] * (dv + sig + bv))
-    eta = rp[R_EPSU] * ueff + rp[R_DMAX] + rp[R_KG] * (rng + dp + rho)
+    eta = rp[R_EPSU] * ueff + rp[R_DMAX] + rp[R_KG] * rng
     gain = 1.0 / (1.0 - rp[R_LAM])
-    rho_inf = gain * (rp[R_CPP] * bp + rp[R_CPV] * bv + rp[R_CPE] * eta)
-    sig_inf = gain * (rp[R_CVP] * bp + rp[R_CVV] * bv + rp[R_CVE] * eta)
+    rho_inf = gain * (rp[R_DPP] * d_p + rp[R_DPV] * d_v + rp[R_CPE] * eta) \
+        + rp[R_GPP] * bp + rp[R_GPV] * bv
+    sig_inf = gain * (rp[R_DVP] * d_p + rp[R_DVV] * d_v + rp[R_CVE] * eta) \
+        + rp[R_GVP] * bp + rp[R_GVV] * bv
     big_r = dp + max(rho, rho_inf)
     return (robust_h1_ok(xv, xc, cp, rp[R_SINA], big_r)
             and robust_h3_ok(xv, xc, cp, big_r, dv + max(sig, sig_inf)))
@@ -171,8 +227,8 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
     u = np.empty(3)
     kb = np.empty((3, 6))
     ev = 0.0
-    rho = 0.0
-    sig = 0.0
+    rho = sig = big_r = big_s = a_n = 0.0  # tube radii, linear-phase bounds, |unsaturated u|
+    linear = False
     for j in range(n):
         t = t_k + j * ts
         xc = chief[j]
@@ -181,10 +237,8 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
         if robust:
             rng = math.sqrt((x[0] - xc[0]) ** 2 + (x[1] - xc[1]) ** 2 + (x[2] - xc[2]) ** 2)
             if j == 0:  # the measured state: off the truth by the navigation error
-                bp = rp[R_NPF] + rp[R_NPG] * rng
-                bv = rp[R_NVF] + rp[R_NVG] * rng
-                rho = rp[R_C0PP] * bp + rp[R_C0PV] * bv
-                sig = rp[R_C0VP] * bp + rp[R_C0VV] * bv
+                rho = rp[R_NPF] + rp[R_NPG] * rng
+                sig = rp[R_NVF] + rp[R_NVG] * rng
             if not robust_h1_ok(x, xc, cp, rp[R_SINA], rho):
                 return False
             if not robust_h3_ok(x, xc, cp, rho, sig):
@@ -206,23 +260,34 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
             dv2 += (x[3 + i] - xv[3 + i]) ** 2
         if dp2 <= tpos2 and dv2 <= tvel2:
             if not robust or robust_terminal_ok(xv, xc, cp, rp, math.sqrt(dp2), math.sqrt(dv2),
-                                                rho, sig):
+                                                rho, sig, ts):
                 return True
-        ftre_control_kernel(table, nu_v, x, xv, u_max, kb, u)
+        if robust:  # ftre_control_kernel's operations, keeping the unsaturated magnitude
+            interpolate_gain_kernel(table, nu_v, kb)
+            for r in range(3):
+                acc = 0.0
+                for c in range(6):
+                    acc -= kb[r, c] * (x[c] - xv[c])
+                u[r] = acc
+            a_n = math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
+            saturate_kernel(u, u_max)
+        else:
+            ftre_control_kernel(table, nu_v, x, xv, u_max, kb, u)
         # h2 holds by saturation up to rounding; checked so a changed control law cannot skip it.
         if h2_thrust_kernel(u, cp) > 1e-12 * u_max:
             return False
-        if robust:  # tubes at sample j + 1 (docs/robustness.md, "the tube recursion")
-            rr = rng + rho
-            bp = rp[R_NPF] + rp[R_NPG] * rr
-            bv = rp[R_NVF] + rp[R_NVG] * rr
-            un = math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
-            ueff = min(u_max, un + rp[R_KP] * (rho + bp) + rp[R_KV] * (sig + bv))
-            eta = rp[R_EPSU] * ueff + rp[R_DMAX] + rp[R_KG] * rr
-            lam = rp[R_LAM]
-            rho_next = lam * rho + rp[R_CPP] * bp + rp[R_CPV] * bv + rp[R_CPE] * eta
-            sig = lam * sig + rp[R_CVP] * bp + rp[R_CVV] * bv + rp[R_CVE] * eta
-            rho = rho_next
+        if robust:  # the tube at sample j + 1 (cikan_ros.robust, docs/robustness.md)
+            vrel = math.sqrt((x[3] - xc[3]) ** 2 + (x[4] - xc[4]) ** 2 + (x[5] - xc[5]) ** 2)
+            rho, sig, big_r, big_s, linear = tube_step(
+                rp, u_max, ts, rng, vrel, rho, sig, big_r, big_s, linear, a_n,
+                math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]))
+        if rp[R_J2DIFF] != 0.0:  # robust model of a J2 world: the J2 difference to the chief
+            jd = rp[R_J2DIFF]
+            ax, ay, az = j2_part_kernel(x[0], x[1], x[2], mu, jd)
+            cx, cy, cz = j2_part_kernel(xc[0], xc[1], xc[2], mu, jd)
+            u[0] += ax - cx
+            u[1] += ay - cy
+            u[2] += az - cz
         rk4_kernel(x, u, ts, sub, mu, x, j2r2)
     return False
 
@@ -393,8 +458,7 @@ class Predictor:
         horizon = cfg.tsg.horizon_s if cfg.tsg.horizon_s > 0 else orbit.period
         n_samples = math.ceil(horizon / cfg.tsg.sample_period_s - 1e-9)
         tp = np.array([cfg.tsg.sample_period_s, n_samples, cfg.tsg.rk4_substeps,
-                       cfg.tsg.terminal_pos_km, cfg.tsg.terminal_vel_kmps,
-                       j2_coefficient(cfg.tsg.prediction_gravity)], dtype=float)
+                       cfg.tsg.terminal_pos_km, cfg.tsg.terminal_vel_kmps, 0.0], dtype=float)
         return cls(cfg, orbit, gain_table(orbit, cfg.control),
                    constraint_params(cfg.constraints, cfg.control.u_max_kmps2), tp,
                    robust_params(cfg, orbit))

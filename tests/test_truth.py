@@ -1,0 +1,141 @@
+"""The truth model: J2 gravity against the potential's gradient and scipy, the drawn errors
+within their declared bounds, seeding, and the chief anchored on its measured state."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from cikan_ros.config import load_config, truth_overrides
+from cikan_ros.dynamics import J2_EARTH, R_EARTH_KM, j2_acceleration, rk4_step
+from cikan_ros.errors import ConfigError
+from cikan_ros.orbit import KeplerOrbit
+from cikan_ros.truth import Truth, gauss_markov
+from cikan_ros.tsg import ChiefAnchor, Predictor
+
+MU = 398600.4418
+
+
+def j2_potential(r: np.ndarray) -> float:
+    """U_J2 = -mu J2 R^2 / (2 r^3) (3 z^2 / r^2 - 1): the J2 term of the geopotential (a = grad U)."""
+    rn = float(np.linalg.norm(r))
+    return -MU * J2_EARTH * R_EARTH_KM**2 / (2 * rn**3) * (3 * r[2] ** 2 / rn**2 - 1)
+
+
+@pytest.mark.parametrize("r", [[7000.0, 0.0, 0.0], [0.0, 0.0, 6900.0], [4000.0, -3000.0, 5000.0],
+                               [1104.7, -3126.6, -6083.5]])
+def test_j2_acceleration_is_the_gradient_of_the_j2_potential(r):
+    r = np.array(r)
+    h = 1e-3
+    grad = np.array([(j2_potential(r + h * e) - j2_potential(r - h * e)) / (2 * h) for e in np.eye(3)])
+    np.testing.assert_allclose(j2_acceleration(r, MU), grad, rtol=1e-7, atol=1e-16)
+
+
+def test_rk4_with_j2_matches_dop853_with_the_potential_gradient():
+    x0 = KeplerOrbit.from_config(load_config().orbit).state(0.0)
+
+    def rhs(_t, y):
+        r = y[:3]
+        return np.concatenate([y[3:], -MU * r / np.linalg.norm(r) ** 3 + j2_acceleration(r, MU)])
+
+    ref = solve_ivp(rhs, (0, 600.0), x0, method="DOP853", rtol=1e-12, atol=1e-12).y[:, -1]
+    x = x0.copy()
+    for _ in range(60):
+        x = rk4_step(x, np.zeros(3), 10.0, MU, 10, 1.5 * J2_EARTH * R_EARTH_KM**2)
+    assert np.linalg.norm(x[:3] - ref[:3]) < 1e-6  # km: under a millimetre after 10 minutes
+    # and J2 matters at this resolution: two-body lands hundreds of metres away
+    two_body = x0.copy()
+    for _ in range(60):
+        two_body = rk4_step(two_body, np.zeros(3), 10.0, MU, 10)
+    assert np.linalg.norm(two_body[:3] - ref[:3]) > 0.1
+
+
+def realistic(**extra) -> object:
+    return load_config(**{**truth_overrides("realistic"), **extra})
+
+
+def test_truth_errors_stay_within_their_declared_bounds():
+    cfg = realistic(**{"truth.scale": 2.0})
+    tc = cfg.truth
+    truth = Truth(cfg, seed=7, n_steps=400)
+    x_d = truth.chief_state(0) + np.array([3.0, -1.0, 2.0, 1e-3, 0.0, -1e-3])
+    for k in range(0, 400, 7):
+        meas, cov = truth.measure_deputy(k, x_d)
+        rng = np.linalg.norm(x_d[:3] - truth.chief_state(k)[:3])
+        bp = 2 * (tc.nav_pos_floor_km + tc.nav_pos_range_fraction * rng)
+        bv = 2 * (tc.nav_vel_floor_kmps + tc.nav_vel_range_fraction_per_s * rng)
+        assert np.linalg.norm(meas[:3] - x_d[:3]) <= bp * (1 + 1e-12)
+        assert np.linalg.norm(meas[3:] - x_d[3:]) <= bv * (1 + 1e-12)
+        np.testing.assert_allclose(np.diag(cov), [(bp / 3) ** 2] * 3 + [(bv / 3) ** 2] * 3)
+    assert np.all(np.linalg.norm(truth.disturbance, axis=1) <= 2 * tc.disturbance_max_kmps2 * (1 + 1e-12))
+    steps = np.linalg.norm(np.diff(truth.nav_pos, axis=0), axis=1)
+    assert steps.max() <= tc.nav_rate_per_s * cfg.control.period_s * (1 + 1e-12)
+    rng = np.random.default_rng(0)
+    b, theta = 2 * tc.thrust_bias_max, math.radians(2 * tc.thrust_pointing_max_deg)
+    eps = b + (1 + b) * 2 * math.sin(theta / 2)
+    for u in rng.normal(size=(50, 3)) * 1e-4:
+        applied = truth.applied_thrust(u)
+        assert np.linalg.norm(applied - u) <= eps * np.linalg.norm(u) * (1 + 1e-12)
+        assert np.linalg.norm(applied) <= (1 + b) * np.linalg.norm(u) * (1 + 1e-12)
+
+
+def test_truth_is_seeded_and_the_nominal_truth_is_the_model():
+    cfg = realistic()
+    a, b, c = Truth(cfg, 3, 50), Truth(cfg, 3, 50), Truth(cfg, 4, 50)
+    np.testing.assert_array_equal(a.nav_pos, b.nav_pos)
+    assert a.bias == b.bias and a.bias != c.bias
+    assert not np.array_equal(a.nav_pos, c.nav_pos)
+    nominal = Truth(load_config(), 3, 50)
+    x = nominal.chief_state(0) + 1.0
+    u = np.array([1e-4, -2e-4, 3e-5])
+    assert nominal.nominal and nominal.measure_deputy(5, x)[0] is x and nominal.applied_thrust(u) is u
+    # the nominal chief is the configured Kepler orbit, bit for bit
+    orbit = KeplerOrbit.from_config(load_config().orbit)
+    np.testing.assert_array_equal(nominal.chief, orbit.state(np.arange(51) * 10.0))
+    # scale 0 of the realistic truth is the nominal model, J2 included
+    assert Truth(realistic(**{"truth.scale": 0.0}), 3, 5).nominal
+
+
+def test_gauss_markov_is_stationary_and_bounded():
+    out = gauss_markov(np.random.default_rng(1), 20000, 10.0, 300.0, 0.2)
+    assert np.all(np.linalg.norm(out, axis=1) <= 1.0 + 1e-12)
+    assert 0.25 < out.std(axis=0).mean() < 0.4  # a third of the bound per axis, a little clipped
+    lag = 30  # 300 s: correlation exp(-1)
+    corr = np.mean([np.corrcoef(out[:-lag, i], out[lag:, i])[0, 1] for i in range(3)])
+    assert 0.2 < corr < 0.5
+
+
+def test_chief_anchor_follows_the_measured_chief():
+    pred = Predictor.from_config(load_config())
+    anchor = ChiefAnchor(pred)
+    x_c = pred.orbit.state(600.0)
+    assert anchor(x_c, 600.0) is pred and anchor.re_anchors == 0
+    moved = x_c + np.array([0.05, -0.02, 0.01, 1e-5, 0.0, 0.0])  # 50 m off the configured chief
+    new = anchor(moved, 600.0)
+    assert new is not pred and anchor.re_anchors == 1
+    np.testing.assert_allclose(new.orbit.state(600.0), moved, rtol=0, atol=1e-9)
+    # propagated like scipy integrates two-body motion from the measured state
+    ref = solve_ivp(lambda _t, y: np.concatenate([y[3:], -MU * y[:3] / np.linalg.norm(y[:3]) ** 3]),
+                    (600.0, 900.0), moved, method="DOP853", rtol=1e-12, atol=1e-12).y[:, -1]
+    np.testing.assert_allclose(new.orbit.state(900.0)[:3], ref[:3], atol=1e-7)
+    assert anchor(new.orbit.state(610.0), 610.0) is new  # within tolerance: no new chief table
+
+
+@pytest.mark.parametrize("key,value", [("truth.nav_pos_floor_km", -1.0),
+                                       ("truth.thrust_bias_max", float("nan")),
+                                       ("truth.gravity", "j4"), ("truth.scale", float("inf"))])
+def test_bad_truth_values_are_named(key, value):
+    with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
+        realistic(**{key: value})
+
+
+def test_truth_files_are_checked(tmp_path):
+    with pytest.raises(ConfigError, match="unknown truth model 'nosuch'"):
+        truth_overrides("nosuch")
+    bad = tmp_path / "t.yaml"
+    bad.write_text("/**:\n  ros__parameters:\n    tsg:\n      robust: true\n")
+    with pytest.raises(ConfigError, match="sets 'tsg.robust'"):
+        truth_overrides(str(bad))
