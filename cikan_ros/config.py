@@ -139,6 +139,7 @@ class TSGConfig:
     robust: bool = False
     robust_zeta_s: float = 0.0
     chief_anchor_tolerance_km: float = 1e-6
+    prediction_gravity: str = "auto"
 
     def __post_init__(self) -> None:
         _check(isinstance(self.robust, bool), "tsg.robust", self.robust, "must be true or false")
@@ -146,6 +147,8 @@ class TSGConfig:
                "tsg.robust_zeta_s", self.robust_zeta_s, "must lie in [0, 60] s")
         _check(math.isfinite(self.chief_anchor_tolerance_km) and self.chief_anchor_tolerance_km >= 0,
                "tsg.chief_anchor_tolerance_km", self.chief_anchor_tolerance_km, "must be finite and >= 0")
+        _check(self.prediction_gravity in ("auto",) + GRAVITY_MODELS, "tsg.prediction_gravity",
+               self.prediction_gravity, f"must be one of {('auto',) + GRAVITY_MODELS}")
         for name in ("sample_period_s", "terminal_pos_km", "terminal_vel_kmps", "tolerance_s",
                      "initial_window_s", "initial_grid_s", "update_period_s"):
             _positive(f"tsg.{name}", getattr(self, name))
@@ -246,6 +249,15 @@ class TruthConfig:
                                            "disturbance_max_kmps2", "nav_pos_floor_km",
                                            "nav_pos_range_fraction", "nav_vel_floor_kmps",
                                            "nav_vel_range_fraction_per_s"))
+
+
+def prediction_gravity(cfg: "Config") -> str:
+    """The gravity of the governors' prediction model: ``tsg.prediction_gravity``, where "auto"
+    is J2 when robust Verify declares a J2 world (``truth.gravity`` j2 at a scale > 0), else
+    two-body (the paper's model)."""
+    if cfg.tsg.prediction_gravity != "auto":
+        return cfg.tsg.prediction_gravity
+    return cfg.truth.effective_gravity if cfg.tsg.robust else "two-body"
 
 
 #: Update rules of learned governors: the default ("keep", SPEC §8 beyond the paper) and the

@@ -81,15 +81,6 @@ def _gravity(x: float, y: float, z: float, mu: float, j2r2: float) -> tuple[floa
 
 
 @nb.njit(cache=True)
-def j2_part_kernel(x: float, y: float, z: float, mu: float, j2r2: float) -> tuple[float, float, float]:
-    """The J2 part alone of the gravity acceleration (km/s^2) at (x, y, z) km; j2r2 = 3/2 J2 R^2."""
-    r2 = x * x + y * y + z * z
-    k = -mu / (r2 * math.sqrt(r2)) * (j2r2 / r2)
-    z2 = z * z / r2
-    return k * (1.0 - 5.0 * z2) * x, k * (1.0 - 5.0 * z2) * y, k * (3.0 - 5.0 * z2) * z
-
-
-@nb.njit(cache=True)
 def rk4_kernel(x: NDArray, u: NDArray, dt: float, substeps: int, mu: float, out: NDArray,
                j2r2: float = 0.0) -> None:
     """Classical RK4 over ``dt`` in ``substeps`` equal steps with u held constant; writes ``out``.

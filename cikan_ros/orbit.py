@@ -111,6 +111,41 @@ def states_kernel(orb: NDArray, times: NDArray, out: NDArray, nus: NDArray) -> N
         nus[k] = state_kernel(orb, times[k], out[k])
 
 
+@nb.njit(cache=True)
+def osculating_params_kernel(x: NDArray, mu: float, out: NDArray) -> None:
+    """The packed orbit (layout ``P_*``) of the osculating ellipse of state x[0:6] (km, km/s),
+    with its mean anomaly at the state's own time (t = 0). A circular orbit (e < 1e-12) takes
+    the position's direction as its periapsis."""
+    rx, ry, rz, vx, vy, vz = x[0], x[1], x[2], x[3], x[4], x[5]
+    r = math.sqrt(rx * rx + ry * ry + rz * rz)
+    v2 = vx * vx + vy * vy + vz * vz
+    a = 1.0 / (2.0 / r - v2 / mu)
+    hx, hy, hz = ry * vz - rz * vy, rz * vx - rx * vz, rx * vy - ry * vx
+    h = math.sqrt(hx * hx + hy * hy + hz * hz)
+    rv = rx * vx + ry * vy + rz * vz
+    c1 = v2 / mu - 1.0 / r
+    ex, ey, ez = c1 * rx - rv / mu * vx, c1 * ry - rv / mu * vy, c1 * rz - rv / mu * vz
+    e = math.sqrt(ex * ex + ey * ey + ez * ez)
+    if e < 1e-12:
+        px, py, pz = rx / r, ry / r, rz / r
+    else:
+        px, py, pz = ex / e, ey / e, ez / e
+    qx, qy, qz = (hy * pz - hz * py) / h, (hz * px - hx * pz) / h, (hx * py - hy * px) / h
+    cos_nu = (px * rx + py * ry + pz * rz) / r
+    sin_nu = (qx * rx + qy * ry + qz * rz) / r
+    s1e = math.sqrt(1.0 - e * e)
+    big_e = math.atan2(s1e * sin_nu, e + cos_nu)
+    out[P_A] = a
+    out[P_E] = e
+    out[P_MU] = mu
+    out[P_N] = math.sqrt(mu / (a * a * a))
+    out[P_M0] = big_e - e * math.sin(big_e)
+    out[5], out[6], out[7] = px, py, pz
+    out[8], out[9], out[10] = qx, qy, qz
+    out[P_S1E] = s1e
+    out[P_SQMUA] = math.sqrt(mu * a)
+
+
 def _rotation_pq(i: float, raan: float, argp: float) -> tuple[NDArray, NDArray]:
     """Perifocal unit vectors P (to periapsis) and Q in ECI for angles in radians."""
     cO, sO = math.cos(raan), math.sin(raan)

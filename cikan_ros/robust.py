@@ -29,31 +29,50 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from .config import Config, ControlConfig, TruthConfig
+from .config import Config, ControlConfig, TruthConfig, prediction_gravity
 from .control import B_INPUT, gain_table, zoh_discretise
 from .dynamics import J2_EARTH, R_EARTH_KM, linearisation
+from .errors import ConfigError
 from .orbit import KeplerOrbit, elements_to_state
 
 # Layout of the packed robustness parameters (``Predictor.rparams``).
 (R_ON, R_LAM, R_C0PP, R_C0PV, R_C0VP, R_C0VV, R_DPP, R_DPV, R_CPE, R_DVP, R_DVV, R_CVE, R_KP, R_KV,
  R_NPF, R_NPG, R_NVF, R_NVG, R_EPSU, R_DMAX, R_KG, R_SINA, R_ZETA, R_GRAD, R_GPP, R_GPV, R_GVP,
- R_GVV, R_NRATE, R_J2DIFF) = range(30)
-N_RPARAMS = 30
+ R_GVV, R_NRATE) = range(29)
+N_RPARAMS = 29
 
 #: Powers of the closed-loop matrix scanned for the constants C (lam^200 < 1e-11 here).
 N_POWERS = 200
 #: True anomalies (deg) of the gain table at which the closed loop is analysed.
-ANALYSIS_STEP_DEG = 5.0
+ANALYSIS_STEP_DEG = 15.0
 
 
-@functools.lru_cache(maxsize=8)
-def tube_constants(orbit: KeplerOrbit, cfg: ControlConfig) -> dict[str, float]:
-    """lam, the C constants and the gain norms |K_p|, |K_v| of the FTRE closed loop, each the
-    worst over the chief orbit's true anomaly (frozen-time analysis, every ANALYSIS_STEP_DEG)."""
+def thrust_matrices(bias: float, pointing_rad: float) -> list[NDArray]:
+    """Extreme thruster maps M = (1 + b) R(theta) of the declared set |b| <= bias, theta <=
+    pointing: b = -bias, 0, +bias times no rotation or a rotation by the full angle about two
+    axes (the FTRE loop is isotropic to well within a percent, so the axis matters little)."""
+    from .truth import rotation
+
+    rots = [np.eye(3)] + ([rotation(np.array(a), pointing_rad) for a in
+                           ([0.0, 0.0, 1.0], [1.0, 0.0, 0.0])] if pointing_rad > 0 else [])
+    gains = sorted({1.0 - bias, 1.0, 1.0 + bias})
+    return [g * r for g in gains for r in rots]
+
+
+class UnstableLoopError(ConfigError):
+    """The declared thruster errors destabilise the FTRE loop: no error tube exists."""
+
+
+@functools.lru_cache(maxsize=16)
+def tube_constants(orbit: KeplerOrbit, cfg: ControlConfig, bias: float = 0.0,
+                   pointing_rad: float = 0.0) -> dict[str, float]:
+    """lam, the C, G and D constants and the gain norms |K_p|, |K_v| of the FTRE closed loop
+    Phi_M = A_d - B_d M K flown with the thruster map M (:func:`thrust_matrices`), each the worst
+    over M and over the chief orbit's true anomaly (frozen-time analysis, every
+    ANALYSIS_STEP_DEG). Raises UnstableLoopError when some M makes the loop unstable."""
     table = gain_table(orbit, cfg)
     n_cells = table.shape[0] - 1
     stride = max(1, round(ANALYSIS_STEP_DEG / cfg.grid_deg))
-    p, v = np.hstack([np.eye(3), np.zeros((3, 3))]), np.hstack([np.zeros((3, 3)), np.eye(3)])
     keys = ("lam", "kp", "kv") + tuple(f"{c}{row}{col}" for c in ("c0", "g", "d")
                                         for row in "pv" for col in "pv") + ("cpe", "cve")
     out = {k: 0.0 for k in keys}
@@ -63,29 +82,33 @@ def tube_constants(orbit: KeplerOrbit, cfg: ControlConfig) -> dict[str, float]:
         r = elements_to_state(orbit.a, orbit.e, orbit.i, orbit.raan, orbit.argp, nu, orbit.mu)[:3]
         a_d, b_d = zoh_discretise(linearisation(r, orbit.mu), B_INPUT, cfg.period_s)
         k = table[j]
-        phi = a_d - b_d @ k
-        systems.append((phi, b_d, k))
-        out["lam"] = max(out["lam"], float(np.max(np.abs(np.linalg.eigvals(phi)))))
         out["kp"] = max(out["kp"], float(np.linalg.norm(k[:, :3], 2)))
         out["kv"] = max(out["kv"], float(np.linalg.norm(k[:, 3:], 2)))
-    lam = out["lam"] = min(out["lam"] * (1.0 + 1e-6), 1.0 - 1e-9)
-    if not lam < 1.0:  # pragma: no cover - the DARE gains stabilise the loop
-        raise ValueError("the FTRE closed loop is not stable: no error tube exists")
+        for mat in thrust_matrices(bias, pointing_rad):
+            bmk = b_d @ mat @ k
+            phi = a_d - bmk
+            systems.append((phi, b_d, bmk))
+            out["lam"] = max(out["lam"], float(np.max(np.abs(np.linalg.eigvals(phi)))))
+    if not out["lam"] < 1.0 - 1e-6:
+        raise UnstableLoopError(
+            f"thruster errors of {bias:.1%} in magnitude and {math.degrees(pointing_rad):.2f} deg in "
+            f"pointing destabilise the FTRE loop (spectral radius {out['lam']:.4f} >= 1; its gain "
+            "margin at this control period is about 3 %): no error tube exists")
+    lam = out["lam"] = out["lam"] * (1.0 + 1e-6)
     rows = {"p": np.hstack([np.eye(3), np.zeros((3, 3))]), "v": np.hstack([np.zeros((3, 3)), np.eye(3)])}
 
     def worst(key: str, value: float) -> None:
         out[key] = max(out[key], value)
 
     scale = lam ** -np.arange(N_POWERS + 1.0)
-    for phi, b_d, k in systems:
-        bk = b_d @ k
+    for phi, b_d, bmk in systems:
         powers = np.empty((N_POWERS + 2, 6, 6))
         powers[0] = np.eye(6)
         for m in range(N_POWERS + 1):
             powers[m + 1] = phi @ powers[m]
-        # DC response to a constant navigation error: sum_l Phi^l B K = (I - Phi)^-1 B K, and
-        # what is left of it after m steps: D_m = sum_{l > m} Phi^l B K = Phi^(m+1) (I - Phi)^-1 B K.
-        dc = np.linalg.solve(np.eye(6) - phi, bk)
+        # DC response to a constant navigation error: sum_l Phi^l B M K = (I - Phi)^-1 B M K, and
+        # what is left of it after m steps: D_m = sum_{l > m} Phi^l B M K = Phi^(m+1) (DC).
+        dc = np.linalg.solve(np.eye(6) - phi, bmk)
         for row, rmat in rows.items():
             rp_ = rmat @ powers  # (N + 2, 3, 6)
             for col, cols in (("p", slice(0, 3)), ("v", slice(3, 6))):
@@ -103,9 +126,9 @@ def norms(mats: NDArray) -> NDArray:
 
 def j2_gradient_bound(r_min_km: float, mu: float) -> float:
     """An upper bound (1/s^2) of |d a_J2 / d r|_2 for |r| >= r_min: the J2 part of the gravity
-    gradient, whose largest eigenvalue modulus is at most 12 J2 mu R^2 / r^5 (a factor 2 above
-    the largest value on the sphere, which is below 6 J2 mu R^2 / r^5; tested in test_robust)."""
-    return 12.0 * J2_EARTH * mu * R_EARTH_KM ** 2 / r_min_km ** 5
+    gradient has its largest norm, 12 J2 mu R^2 / r^5, over the poles (tested in test_robust);
+    the bound takes 15 for margin."""
+    return 15.0 * J2_EARTH * mu * R_EARTH_KM ** 2 / r_min_km ** 5
 
 
 def robust_params(cfg: Config, orbit: KeplerOrbit) -> NDArray:
@@ -116,8 +139,10 @@ def robust_params(cfg: Config, orbit: KeplerOrbit) -> NDArray:
     rp[R_ZETA] = cfg.tsg.robust_zeta_s
     if not cfg.tsg.robust:
         return rp
-    tc = tube_constants(orbit, cfg.control)
     truth: TruthConfig = cfg.truth
+    bias = truth.bound("thrust_bias_max")
+    point = math.radians(truth.bound("thrust_pointing_max_deg"))
+    tc = tube_constants(orbit, cfg.control, bias, point)
     rp[R_ON] = 1.0
     rp[R_LAM] = tc["lam"]
     for name, idx in (("c0pp", R_C0PP), ("c0pv", R_C0PV), ("c0vp", R_C0VP), ("c0vv", R_C0VV),
@@ -130,20 +155,15 @@ def robust_params(cfg: Config, orbit: KeplerOrbit) -> NDArray:
     rp[R_NPG] = truth.bound("nav_pos_range_fraction")
     rp[R_NVF] = truth.bound("nav_vel_floor_kmps")
     rp[R_NVG] = truth.bound("nav_vel_range_fraction_per_s")
-    bias = truth.bound("thrust_bias_max")
-    point = math.radians(truth.bound("thrust_pointing_max_deg"))
     rp[R_EPSU] = bias + (1.0 + bias) * 2.0 * math.sin(point / 2.0)
     rp[R_DMAX] = truth.bound("disturbance_max_kmps2")
     # Bound of the gravity gradient (norm 2 mu / r^3) at the lowest radius the deputy reaches.
     rp[R_GRAD] = 3.0 * orbit.mu / (orbit.a * (1.0 - orbit.e) - 200.0) ** 3
-    if truth.effective_gravity == "j2":
-        # Robust Verify models what it declares: the deputy's prediction adds the J2 difference
-        # a_J2(deputy) - a_J2(chief) of sample j, held over the sample like the thrust; what is
-        # left is its change within a sample (the chief moves <= 100 km per 10 s: the gradient
-        # changes by < 10 %), bounded by a tenth of the J2 gradient's bound at the lowest radius
-        # (the deputy and the chief stay above the chief's perigee less the start's spread).
-        rp[R_J2DIFF] = 1.5 * J2_EARTH * R_EARTH_KM ** 2
+    if truth.effective_gravity == "j2" and prediction_gravity(cfg) == "two-body":
+        # The J2 difference between deputy and chief is left out of the prediction: bounded
+        # by the J2 gradient at the lowest radius times the range (the deputy and the chief
+        # stay above the chief's perigee less the start's spread).
         r_min = orbit.a * (1.0 - orbit.e) - 200.0
-        rp[R_KG] = 0.1 * j2_gradient_bound(r_min, orbit.mu)
+        rp[R_KG] = j2_gradient_bound(r_min, orbit.mu)
     rp.setflags(write=False)
     return rp

@@ -36,16 +36,17 @@ import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .config import Config
+from .config import Config, prediction_gravity
 from .constraints import (C_APEX, C_COS_ALPHA, C_GAMMA1, C_GAMMA2, C_GAMMA3, C_UMAX, constraint_params, h1_line_of_sight_kernel, h2_thrust_kernel,
                           h3_approach_velocity_kernel)
 from .control import ftre_control_kernel, gain_table, interpolate_gain_kernel, saturate_kernel
-from .dynamics import j2_part_kernel, rk4_kernel
+from .dynamics import j2_coefficient, rk4_kernel
 from .errors import NoFeasibleShiftError, StateError
-from .orbit import (P_E, P_M0, P_MU, P_N, KeplerOrbit, check_states, eccentric_anomaly_kernel,
-                    state_from_anomaly_kernel, state_kernel, state_warm_kernel)
+from .orbit import (N_PARAMS, P_E, P_M0, P_MU, P_N, KeplerOrbit, check_states,
+                    eccentric_anomaly_kernel, osculating_params_kernel, state_from_anomaly_kernel,
+                    state_kernel, state_warm_kernel)
 from .robust import (R_C0PP, R_C0PV, R_C0VP, R_C0VV, R_CPE, R_CVE, R_DPP, R_DPV, R_DVP, R_DVV,
-                     R_GPP, R_GPV, R_GVP, R_GVV, R_J2DIFF, R_NRATE,
+                     R_GPP, R_GPV, R_GVP, R_GVV, R_NRATE,
                      R_DMAX, R_EPSU, R_GRAD, R_KG, R_KP, R_KV, R_LAM, R_NPF, R_NPG, R_NVF, R_NVG, R_ON,
                      R_SINA, R_ZETA, robust_params)
 from .units import ns_to_seconds
@@ -57,8 +58,13 @@ def quantise_shift(tau: float) -> float:
 
 
 # Layout of the packed prediction parameters.
-# T_J2R2: 3/2 J2 R^2 of the prediction's gravity (0: two-body, the prediction model here).
+# T_J2R2: 3/2 J2 R^2 of the prediction's gravity (0: two-body, the paper's model).
 T_SAMPLE, T_NSAMPLES, T_SUBSTEPS, T_TERM_POS, T_TERM_VEL, T_J2R2 = range(6)
+#: Columns of a chief row under the J2 prediction model: state, a "computed" flag (the anomaly
+#: column of the two-body rows), and the packed osculating orbit of the row (mean anomaly at
+#: the row's own time), from which the virtual target is propagated by tau.
+J2_ROW_ORBIT = slice(7, 7 + N_PARAMS)
+J2_ROW_WIDTH = 7 + N_PARAMS
 
 
 @nb.njit(cache=True)
@@ -67,6 +73,20 @@ def chief_row_kernel(orb: NDArray, t: float, row: NDArray) -> None:
     start), so a row's bits do not depend on which update computed it first."""
     row[6] = eccentric_anomaly_kernel(orb[P_M0] + orb[P_N] * t, orb[P_E])
     state_from_anomaly_kernel(orb, row[6], row, False)
+
+
+@nb.njit(cache=True)
+def chief_row_j2_kernel(chief: NDArray, j: int, ts: float, sub: int, mu: float, j2r2: float) -> None:
+    """J2 prediction model: chief row j (>= 1) integrated from row j - 1 (RK4 with J2, no
+    thrust), with its osculating orbit packed beside it. Row 0 is the anchored chief state."""
+    row = chief[j]
+    prev = chief[j - 1]
+    if prev[6] != prev[6]:
+        chief_row_j2_kernel(chief, j - 1, ts, sub, mu, j2r2)
+    zero = np.zeros(3)
+    rk4_kernel(prev[:6], zero, ts, sub, mu, row[:6], j2r2)
+    osculating_params_kernel(row, mu, row[7:7 + N_PARAMS])
+    row[6] = 0.0
 
 
 @nb.njit(cache=True)
@@ -146,22 +166,26 @@ def tube_step(rp: NDArray, u_max: float, ts: float, rng: float, vrel: float, rho
     predicted range (km) and relative speed (km/s), a_n the unsaturated and un the saturated
     command magnitude (km/s^2); m = |K_p| (rho + b_p) + |K_v| (sigma + b_v) bounds how far the
     command of a state in the tube may differ from the prediction's.
-    - Unless every state of the tube saturates (a_n - m < u_max): the closed loop. The error is
+    - Not every state of the tube saturates (a_n - m < u_max): the closed loop flown with the
+      thruster map M, Phi_M = A - B M K (lam and the constants are the worst over M). The error is
       the navigation error's DC response G (b_p, b_v) plus R, S that decay like lam^m:
       R' = lam R + D (Delta_p, Delta_v) + C_e eta, entered from (rho, sigma) through the C0
       constants (and D (b_p, b_v): the navigation error taken as a fresh step); and never more
       than the open double integrator with |Delta u| <= 2 u_max allows.
-    - Every state saturates: the feedback acts only across the thrust direction, with the gain
-      u_max / |a| < 1 (the projection onto the thrust ball), and not at all along it; the error
-      then propagates as an open double integrator under the unknown accelerations, the
-      direction error the navigation error causes, u_max (|K_p| b_p + |K_v| b_v) / (a_n - m),
-      and the gravity gradient's bound g rho.
+    - Every state saturates: the feedback acts only across the thrust
+      direction, with the gain u_max / |a| <= 1 (the projection onto the thrust ball), and not
+      along it; the error is then propagated as an open double integrator (that feedback taken
+      as no help) under the unknown accelerations, the command error the navigation error
+      causes, (|K_p| b_p + |K_v| b_v) u_max / max(a_n - m, u_max), and the gravity gradient's
+      bound g rho.
     docs/robustness.md states which of these steps are bounds and which approximations.
     """
     rr = rng + rho
     bp, bv, dp, dv = nav_terms(rp, rr, vrel + sig, ts)
     m = rp[R_KP] * (rho + bp) + rp[R_KV] * (sig + bv)
-    eta = rp[R_EPSU] * min(u_max, un + m) + rp[R_DMAX] + rp[R_KG] * rr
+    # The thruster error of the predicted command (the part proportional to the tube's own
+    # command error is in the loop Phi_M = A - B M K of the tube constants).
+    eta = rp[R_EPSU] * un + rp[R_DMAX] + rp[R_KG] * rr
     if a_n - m < u_max:
         if not linear:
             big_r = (rp[R_C0PP] * rho + rp[R_C0PV] * sig) + (rp[R_DPP] * bp + rp[R_DPV] * bv)
@@ -188,8 +212,7 @@ def robust_terminal_ok(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, dp: f
     whole ball must satisfy h1 and h3 (docs/robustness.md, "terminal set")."""
     rng = math.sqrt((xv[0] - xc[0]) ** 2 + (xv[1] - xc[1]) ** 2 + (xv[2] - xc[2]) ** 2) + dp + rho
     bp, bv, d_p, d_v = nav_terms(rp, rng, dv + sig, ts)
-    ueff = min(cp[C_UMAX], rp[R_KP] * (dp + rho + bp) + rp[R_KV] * (dv + sig + bv))
-    eta = rp[R_EPSU] * ueff + rp[R_DMAX] + rp[R_KG] * rng
+    eta = rp[R_EPSU] * min(cp[C_UMAX], rp[R_KP] * dp + rp[R_KV] * dv) + rp[R_DMAX] + rp[R_KG] * rng
     gain = 1.0 / (1.0 - rp[R_LAM])
     rho_inf = gain * (rp[R_DPP] * d_p + rp[R_DPV] * d_v + rp[R_CPE] * eta) \
         + rp[R_GPP] * bp + rp[R_GPV] * bv
@@ -233,7 +256,10 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
         t = t_k + j * ts
         xc = chief[j]
         if xc[6] != xc[6]:  # NaN: not computed yet
-            chief_row_kernel(orb, chief_t0 + j * ts, xc)
+            if j2r2 != 0.0:
+                chief_row_j2_kernel(chief, j, ts, sub, mu, j2r2)
+            else:
+                chief_row_kernel(orb, chief_t0 + j * ts, xc)
         if robust:
             rng = math.sqrt((x[0] - xc[0]) ** 2 + (x[1] - xc[1]) ** 2 + (x[2] - xc[2]) ** 2)
             if j == 0:  # the measured state: off the truth by the navigation error
@@ -248,7 +274,9 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
                 return False
             if h3_approach_velocity_kernel(x, xc, cp) > 0.0:
                 return False
-        if j == 0:
+        if j2r2 != 0.0:  # the controller's virtual target: the chief's own orbit, tau away
+            nu_v = state_kernel(xc[7:7 + N_PARAMS], tau, xv)
+        elif j == 0:
             ev = eccentric_anomaly_kernel(orb[P_M0] + orb[P_N] * (t + tau), e)
             nu_v = state_from_anomaly_kernel(orb, ev, xv)
         else:
@@ -281,13 +309,6 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
             rho, sig, big_r, big_s, linear = tube_step(
                 rp, u_max, ts, rng, vrel, rho, sig, big_r, big_s, linear, a_n,
                 math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]))
-        if rp[R_J2DIFF] != 0.0:  # robust model of a J2 world: the J2 difference to the chief
-            jd = rp[R_J2DIFF]
-            ax, ay, az = j2_part_kernel(x[0], x[1], x[2], mu, jd)
-            cx, cy, cz = j2_part_kernel(xc[0], xc[1], xc[2], mu, jd)
-            u[0] += ax - cx
-            u[1] += ay - cy
-            u[2] += az - cz
         rk4_kernel(x, u, ts, sub, mu, x, j2r2)
     return False
 
@@ -458,7 +479,8 @@ class Predictor:
         horizon = cfg.tsg.horizon_s if cfg.tsg.horizon_s > 0 else orbit.period
         n_samples = math.ceil(horizon / cfg.tsg.sample_period_s - 1e-9)
         tp = np.array([cfg.tsg.sample_period_s, n_samples, cfg.tsg.rk4_substeps,
-                       cfg.tsg.terminal_pos_km, cfg.tsg.terminal_vel_kmps, 0.0], dtype=float)
+                       cfg.tsg.terminal_pos_km, cfg.tsg.terminal_vel_kmps,
+                       j2_coefficient(prediction_gravity(cfg))], dtype=float)
         return cls(cfg, orbit, gain_table(orbit, cfg.control),
                    constraint_params(cfg.constraints, cfg.control.u_max_kmps2), tp,
                    robust_params(cfg, orbit))
@@ -516,6 +538,12 @@ class Predictor:
         """Chief states for the Verify/bisect calls at update time t: a view into the process's
         :class:`ChiefTable` when t lies on the sample grid, else a private array."""
         t = float(t)
+        if self.tparams[T_J2R2] != 0.0:  # rows integrated from the anchored chief at t
+            rows = np.full((self.n_samples, J2_ROW_WIDTH), math.nan)
+            rows[0, :6] = self.orbit.state(t)
+            osculating_params_kernel(rows[0], self.orbit.mu, rows[0, J2_ROW_ORBIT])
+            rows[0, 6] = 0.0
+            return ChiefCache(t, rows, t)
         table: ChiefTable = self._table  # type: ignore[attr-defined]
         i = table.index(t)
         if i is None:

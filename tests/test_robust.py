@@ -1,0 +1,155 @@
+"""Robust Verify: the tube recursion bounds the error system it is derived from, the tightened
+constraints hold on the whole ball, the J2 gradient bound, and whole missions on the truth."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from cikan_ros.config import load_config, truth_overrides
+from cikan_ros.constraints import constraint_params, h1_line_of_sight_kernel
+from cikan_ros.control import B_INPUT, zoh_discretise
+from cikan_ros.dynamics import J2_EARTH, R_EARTH_KM, j2_acceleration, linearisation
+from cikan_ros.governor import ConventionalGovernor
+from cikan_ros.mission import nominal_start, run_mission, sample_start
+from cikan_ros.orbit import KeplerOrbit
+from cikan_ros.robust import (UnstableLoopError, j2_gradient_bound, thrust_matrices,
+                              tube_constants)
+from cikan_ros.tsg import Predictor, robust_h1_ok
+
+MU = 398600.4418
+CFG = load_config()
+ORBIT = KeplerOrbit.from_config(CFG.orbit)
+
+
+def loop_at(nu: float, m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Phi_M = A_d - B_d M K, B_d, K of the FTRE loop at true anomaly nu (independent of robust.py's
+    loop: the gain from the shipped table, the ZOH from scipy's expm)."""
+    pred = Predictor.from_config(CFG)
+    from cikan_ros.control import interpolate_gain
+    from cikan_ros.orbit import elements_to_state
+
+    r = elements_to_state(ORBIT.a, ORBIT.e, ORBIT.i, ORBIT.raan, ORBIT.argp, nu, MU)[:3]
+    a_d, b_d = zoh_discretise(linearisation(r, MU), B_INPUT, CFG.control.period_s)
+    k = interpolate_gain(pred.gains, nu)
+    return a_d - b_d @ m @ k, b_d, k
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31), nu=st.floats(0.0, 2 * math.pi), which=st.integers(0, 8))
+def test_tube_recursion_bounds_the_linear_error_system(seed, nu, which):
+    """e' = Phi_M e - B M K delta + B eta with |delta_p| <= b_p, |delta_v| <= b_v changing by at
+    most Delta per step and |eta| <= h: the recursion of cikan_ros.tsg.tube_step (linear branch)
+    bounds |P e_j| and |V e_j| along a random admissible sequence."""
+    bias, point = 0.02, math.radians(1.0)
+    c = tube_constants(ORBIT, CFG.control, bias, point)
+    m = thrust_matrices(bias, point)[which]
+    phi, b_d, k = loop_at(nu, m)
+    rng = np.random.default_rng(seed)
+    bp, bv, h, frac = 1e-3, 1e-5, 1e-7, 0.1
+    delta = np.concatenate([rng.uniform(-1, 1, 3) * bp / math.sqrt(3), rng.uniform(-1, 1, 3) * bv / math.sqrt(3)])
+    e = -delta.copy()
+    rho, sig = bp, bv
+    big_r = c["c0pp"] * rho + c["c0pv"] * sig + c["dpp"] * bp + c["dpv"] * bv
+    big_s = c["c0vp"] * rho + c["c0vv"] * sig + c["dvp"] * bp + c["dvv"] * bv
+    for _ in range(150):
+        step = rng.uniform(-1, 1, 6)
+        step[:3] *= frac * bp / math.sqrt(3)
+        step[3:] *= frac * bv / math.sqrt(3)
+        new = np.clip(delta + step, [-bp / math.sqrt(3)] * 3 + [-bv / math.sqrt(3)] * 3,
+                      [bp / math.sqrt(3)] * 3 + [bv / math.sqrt(3)] * 3)
+        eta = rng.normal(size=3)
+        eta *= h / np.linalg.norm(eta)
+        e = phi @ e - b_d @ m @ k @ delta + b_d @ eta
+        delta = new
+        big_r = c["lam"] * big_r + c["dpp"] * frac * bp + c["dpv"] * frac * bv + c["cpe"] * h
+        big_s = c["lam"] * big_s + c["dvp"] * frac * bp + c["dvv"] * frac * bv + c["cve"] * h
+        assert np.linalg.norm(e[:3]) <= big_r + c["gpp"] * bp + c["gpv"] * bv
+        assert np.linalg.norm(e[3:]) <= big_s + c["gvp"] * bp + c["gvv"] * bv
+
+
+def test_thruster_errors_beyond_the_gain_margin_are_refused():
+    lam = {b: tube_constants(ORBIT, CFG.control, b, 0.0)["lam"] for b in (0.0, 0.02)}
+    assert lam[0.0] < lam[0.02] < 1.0
+    # the nominal loop's eigenvalue, from the gain table directly
+    phi, _, _ = loop_at(0.3, np.eye(3))
+    assert lam[0.0] == pytest.approx(np.max(np.abs(np.linalg.eigvals(phi))), rel=1e-3)
+    with pytest.raises(UnstableLoopError, match="destabilise the FTRE loop"):
+        tube_constants(ORBIT, CFG.control, 0.04, 0.0)
+
+
+@settings(max_examples=200, deadline=None)
+@given(theta=st.floats(0.0, 19.9), rng_km=st.floats(0.002, 50.0), rho_frac=st.floats(0.0, 0.3),
+       seed=st.integers(0, 2**31))
+def test_robust_h1_holds_on_the_whole_ball(theta, rng_km, rho_frac, seed):
+    """If robust_h1_ok(x, rho), every point within rho of x satisfies h1 <= 0 (or lies within
+    the apex radius): the cone's surface is rho or more away."""
+    cp = constraint_params(CFG.constraints, CFG.control.u_max_kmps2)
+    x_c = ORBIT.state(0.0)
+    axis = -x_c[3:] / np.linalg.norm(x_c[3:])
+    perp = np.cross(axis, [0.0, 0.0, 1.0])
+    perp /= np.linalg.norm(perp)
+    t = math.radians(theta)
+    x = x_c.copy()
+    x[:3] += rng_km * (math.cos(t) * axis + math.sin(t) * perp)
+    rho = rho_frac * rng_km
+    ok = robust_h1_ok(x, x_c, cp, math.sin(math.radians(20.0)), rho)
+    exact = rng_km * math.sin(math.radians(20.0) - t) >= rho
+    assert ok == exact or abs(rng_km * math.sin(math.radians(20.0) - t) - rho) < 1e-12
+    if ok:
+        r = np.random.default_rng(seed)
+        for _ in range(20):
+            d = r.normal(size=3)
+            y = x.copy()
+            y[:3] += d / np.linalg.norm(d) * rho * r.uniform() ** (1 / 3)
+            h1 = h1_line_of_sight_kernel(y, x_c, cp)
+            assert not h1 > 1e-12 * np.linalg.norm(x_c[3:]) * rng_km
+
+
+@settings(max_examples=100, deadline=None)
+@given(r=st.floats(6728.0, 45000.0), lat=st.floats(-math.pi / 2, math.pi / 2), lon=st.floats(0, 2 * math.pi))
+def test_j2_gradient_bound(r, lat, lon):
+    p = r * np.array([math.cos(lat) * math.cos(lon), math.cos(lat) * math.sin(lon), math.sin(lat)])
+    h = 1e-3
+    jac = np.column_stack([(j2_acceleration(p + h * e, MU) - j2_acceleration(p - h * e, MU)) / (2 * h)
+                           for e in np.eye(3)])
+    assert np.linalg.norm(jac, 2) <= j2_gradient_bound(6728.0, MU)
+    assert np.linalg.norm(jac, 2) <= 12 * J2_EARTH * MU * R_EARTH_KM**2 / r**5 * (1 + 1e-6)
+
+
+def test_robust_verify_with_zero_bounds_is_nominal_verify():
+    cfg = load_config(**{**truth_overrides("realistic"), "truth.scale": 0.0, "tsg.robust": True})
+    robust = Predictor.from_config(cfg)
+    nominal = Predictor.from_config(load_config())
+    for seed in (1, 2):
+        x = sample_start(nominal, seed)
+        assert robust.initial_shift(x, 0.0) == nominal.initial_shift(x, 0.0)
+        for tau in (-5.0, -8.0, -9.5, -12.0):
+            assert robust.verify(x, 0.0, tau) == nominal.verify(x, 0.0, tau)
+
+
+def test_the_truth_bites_and_robust_verify_keeps_the_constraints():
+    realistic = {**truth_overrides("realistic")}
+    nominal_gov = ConventionalGovernor.from_config(load_config(**realistic))
+    x0 = nominal_start(nominal_gov.predictor)
+    bitten = run_mission(nominal_gov, x0).metrics()
+    assert bitten["violations"] > 0  # nominal Verify rides the cone; the truth pushes it out
+    robust_gov = ConventionalGovernor.from_config(load_config(**realistic, **{"tsg.robust": True}))
+    m = run_mission(robust_gov, x0).metrics()
+    assert m["violations"] == 0 and m["success"], m
+    assert m["final_distance_m"] < 0.1 and m["final_speed_mps"] < 0.01
+
+
+def test_cli_refuses_bounds_beyond_the_loop_and_bad_bounds():
+    for extra in (["--set", "truth.scale=2"], ["--set", "truth.nav_pos_floor_km=-1"]):
+        out = subprocess.run([sys.executable, "-m", "cikan_ros.cli", "mission", "--offline",
+                              "--truth", "realistic", "--robust", *extra],
+                             capture_output=True, text=True, timeout=120)
+        assert out.returncode == 2, out.stderr
+        assert out.stderr.count("\n") == 1 and "Traceback" not in out.stderr
