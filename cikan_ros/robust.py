@@ -157,8 +157,9 @@ def robust_params(cfg: Config, orbit: KeplerOrbit) -> NDArray:
     rp[R_NVG] = truth.bound("nav_vel_range_fraction_per_s")
     rp[R_EPSU] = bias + (1.0 + bias) * 2.0 * math.sin(point / 2.0)
     rp[R_DMAX] = truth.bound("disturbance_max_kmps2")
-    # Bound of the gravity gradient (norm 2 mu / r^3) at the lowest radius the deputy reaches.
-    rp[R_GRAD] = 3.0 * orbit.mu / (orbit.a * (1.0 - orbit.e) - 200.0) ** 3
+    # The gravity gradient's norm at radius r is 2 mu / r^3 (two-body) times at most 1 + 6 J2
+    # (R / r)^2 < 1.01 (J2): the kernel divides this by the smallest radius in the tube, cubed.
+    rp[R_GRAD] = 2.0 * 1.01 * orbit.mu
     if truth.effective_gravity == "j2" and prediction_gravity(cfg) == "two-body":
         # The J2 difference between deputy and chief is left out of the prediction: bounded
         # by the J2 gradient at the lowest radius times the range (the deputy and the chief

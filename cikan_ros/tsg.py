@@ -158,13 +158,13 @@ def nav_terms(rp: NDArray, rng: float, vrel: float, ts: float) -> tuple[float, f
 
 @nb.njit(cache=True)
 def tube_step(rp: NDArray, u_max: float, ts: float, rng: float, vrel: float, rho: float,
-              sig: float, big_r: float, big_s: float, linear: bool, a_n: float, un: float
-              ) -> tuple[float, float, float, float, bool]:
+              sig: float, big_r: float, big_s: float, linear: bool, a_n: float, un: float,
+              grad: float) -> tuple[float, float, float, float, bool]:
     """The tube from sample j to j + 1: (rho, sigma, R, S, linear) after the step.
 
     rho, sigma bound the position (km) and velocity (km/s) error at j; rng, vrel are the
     predicted range (km) and relative speed (km/s), a_n the unsaturated and un the saturated
-    command magnitude (km/s^2); m = |K_p| (rho + b_p) + |K_v| (sigma + b_v) bounds how far the
+    command magnitude (km/s^2), grad the gravity gradient's bound in the tube (1/s^2); m = |K_p| (rho + b_p) + |K_v| (sigma + b_v) bounds how far the
     command of a state in the tube may differ from the prediction's.
     - Not every state of the tube saturates (a_n - m < u_max): the closed loop flown with the
       thruster map M, Phi_M = A - B M K (lam and the constants are the worst over M). The error is
@@ -195,10 +195,10 @@ def tube_step(rp: NDArray, u_max: float, ts: float, rng: float, vrel: float, rho
         big_s = lam * big_s + rp[R_DVP] * dp + rp[R_DVV] * dv + rp[R_CVE] * eta
         # Whatever the loop does, the commands differ by at most 2 u_max: the open double
         # integrator bounds the error too, and is the smaller bound while the tube is wide.
-        du = 2.0 * u_max + eta + rp[R_GRAD] * rho
+        du = 2.0 * u_max + eta + grad * rho
         return (min(big_r + rp[R_GPP] * bp + rp[R_GPV] * bv, rho + ts * sig + 0.5 * ts * ts * du),
                 min(big_s + rp[R_GVP] * bp + rp[R_GVV] * bv, sig + ts * du), big_r, big_s, True)
-    du = u_max * (rp[R_KP] * bp + rp[R_KV] * bv) / (a_n - m) + eta + rp[R_GRAD] * rho
+    du = u_max * (rp[R_KP] * bp + rp[R_KV] * bv) / (a_n - m) + eta + grad * rho
     return (rho + ts * sig + 0.5 * ts * ts * du, sig + ts * du, big_r, big_s, False)
 
 
@@ -306,9 +306,11 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
             return False
         if robust:  # the tube at sample j + 1 (cikan_ros.robust, docs/robustness.md)
             vrel = math.sqrt((x[3] - xc[3]) ** 2 + (x[4] - xc[4]) ** 2 + (x[5] - xc[5]) ** 2)
+            r_low = math.sqrt(xc[0] * xc[0] + xc[1] * xc[1] + xc[2] * xc[2]) - rng - rho
             rho, sig, big_r, big_s, linear = tube_step(
                 rp, u_max, ts, rng, vrel, rho, sig, big_r, big_s, linear, a_n,
-                math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]))
+                math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]),
+                rp[R_GRAD] / max(r_low, 6000.0) ** 3)
         rk4_kernel(x, u, ts, sub, mu, x, j2r2)
     return False
 
@@ -421,8 +423,9 @@ def initial_search_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray
     """First-instant search (SPEC §5), times in integer ns. Returns (tau_ns, Verify calls, found).
 
     tau_near = the grid point of [-window, 0] nearest to the deputy's position; walk the grid from
-    it toward 0 while feasible (or away from 0 until feasible), then bisect between the two
-    adjacent grid points, the feasible one being the verified lower end.
+    it toward 0 while feasible (or away from 0 until feasible; if none is, from tau_near toward 0
+    until feasible and on while feasible), then bisect between the two adjacent grid points, the
+    feasible one being the verified lower end.
     """
     n_grid = window_ns // grid_ns
     xc = np.empty(6)
@@ -453,7 +456,25 @@ def initial_search_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray
                 found = True
                 break
         if not found:
-            return 0, calls, False
+            # Then toward 0 from tau_near (SPEC §5 stops above; robust Verify's feasible shifts
+            # may lie only there): the first feasible point, then on toward 0 while feasible.
+            m = best
+            while m > 0:
+                m -= 1
+                calls += 1
+                if verify_kernel(orb, table, cp, tp, rp, x0, t0, -m * grid_ns / 1e9, chief, chief_t0):
+                    found = True
+                    break
+            if not found:
+                return 0, calls, False
+            while m > 0:
+                calls += 1
+                if not verify_kernel(orb, table, cp, tp, rp, x0, t0, -(m - 1) * grid_ns / 1e9,
+                                     chief, chief_t0):
+                    break
+                m -= 1
+            if m == 0:
+                return 0, calls, True
     tau, _, c = bisect_kernel(orb, table, cp, tp, rp, x0, t0, -m * grid_ns, -(m - 1) * grid_ns, tol_ns,
                              chief, chief_t0, -1)
     return tau, calls + c, True
