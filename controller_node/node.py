@@ -47,7 +47,8 @@ class ControllerNode(Node):
         peers, timeout = [str(n) for n in p["graph.peers"]], float(p["graph.startup_timeout_s"])
         pred = cached_predictor(cfg)
         self.loop = ClosedLoop(pred)
-        self.loop.command(0, 0.0, pred.orbit.state(0.0))  # load the compiled kernels now
+        x0 = pred.orbit.state(0.0)
+        self.loop.command(0, 0.0, x0, x0)  # load the compiled kernels now
         self.timeline = cv.Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
         self.n_steps = self.loop.n_steps
         self.tau: float | None = None     # last verified shift (s)
@@ -140,7 +141,11 @@ class ControllerNode(Node):
         self.deadline.cancel()
         self.lost_deadline.cancel()
         self.waiting = None
-        u = self.loop.command(self.timeline.step(stamp), tau, x_d)
+        k = self.timeline.step(stamp)
+        # sim_node flies the configured (two-body) chief, so that is the chief the controller
+        # anchors on; a measured /chief/odom is not subscribed to yet (ClosedLoop.command).
+        x_c = self.loop.predictor.orbit.state(self.loop.time(k))
+        u = self.loop.command(k, tau, x_d, x_c)
         self.pub_accel.publish(cv.accel_msg(u, stamp))
         self.tau = tau
         self.last_stamp = stamp

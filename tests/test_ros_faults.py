@@ -122,7 +122,7 @@ def test_governor_killed_controller_holds_last_verified_shift(ros_env: int, tmp_
         if s > last_published:
             assert s in holds, k
         assert stamps[k] == s
-        u = loop.command(k, tau_used[-1], x_d[k])              # the FTRE law toward that shift
+        u = loop.command(k, tau_used[-1], x_d[k], loop.predictor.orbit.state(loop.time(k)))  # the FTRE law
         np.testing.assert_array_equal(commands[s], u * 1e3)    # as the controller sent it (m/s^2)
     assert tau_used[-1] < 0.0
     _, x_c = states(msgs, "/chief/odom")

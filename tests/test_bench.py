@@ -1,0 +1,84 @@
+"""``cikan bench`` under a non-nominal truth and robust Verify, on a tiny state set (no timing
+thresholds: the figures are only checked to exist and be finite)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from cikan_ros.bench import conventional_section, nominal_section
+from cikan_ros.config import load_config, truth_overrides
+from cikan_ros.timing import collect_states, is_nominal, nominal_config
+
+#: The conventional section's keys before the truth model: a nominal run reports exactly these,
+#: and a non-nominal one reports them again as ``nominal_<key>``.
+NOMINAL_KEYS = {
+    "n_missions", "n_update_states", "conventional_update_ms_mean", "conventional_update_ms_p50",
+    "conventional_update_ms_max", "conventional_verify_calls_mean", "verify_ms_mean",
+    "conventional_initial_ms_mean", "conventional_initial_ms_max", "offline_mission_s_mean",
+}
+#: Figures a non-nominal run adds: the ratio to the nominal configuration and the anchoring cost.
+NEW_KEYS = {
+    "conventional_update_ms_ratio_to_nominal", "conventional_update_ms_max_ratio_to_nominal",
+    "conventional_re_anchor_rate", "mission_re_anchors_mean", "mission_anchor_calls_mean",
+    "anchor_ms_mean", "anchor_check_ms_mean", "verify_cold_ms_mean",
+    "conventional_update_anchored_ms_mean", "conventional_update_anchored_ms_max",
+    "re_anchor_cost_ms_mean", "conventional_verify_calls_max", "n_missions_infeasible",
+}
+N_STATES = 4
+
+
+def tiny(states):
+    states.updates, states.priors = states.updates[:N_STATES], states.priors[:N_STATES]
+    return states
+
+
+@pytest.fixture(scope="module")
+def realistic():
+    cfg = load_config(None, **truth_overrides("realistic"), **{"tsg.robust": True})
+    return cfg, tiny(collect_states(cfg, 1))
+
+
+def test_nominal_run_keeps_its_keys():
+    cfg = load_config()
+    assert is_nominal(cfg) and nominal_config(cfg) == cfg
+    states = tiny(collect_states(cfg, 1))
+    assert states.priors == [None] * N_STATES  # the configured chief: never re-anchored
+    out = conventional_section(cfg, states, 1)
+    assert set(out) == NOMINAL_KEYS
+    assert nominal_section(cfg, states, 1) == {}
+
+
+def test_realistic_robust_bench_reports_ratio_and_anchoring(realistic):
+    cfg, states = realistic
+    assert not is_nominal(cfg) and is_nominal(nominal_config(cfg))
+    assert len(states.updates) == N_STATES
+    # The states are what the governor saw under the J2 truth: the first instant anchors on the
+    # configured chief (the truth starts on it), every later update had re-anchored before.
+    assert states.priors[0] is None and all(p is not None for p in states.priors[1:])
+    out = conventional_section(cfg, states, 1)
+    out.update(nominal_section(cfg, states, 1))
+    assert NEW_KEYS <= set(out)
+    assert {k.removeprefix("nominal_") for k in out if k.startswith("nominal_")} == NOMINAL_KEYS
+    for k in NEW_KEYS | {f"nominal_{k}" for k in NOMINAL_KEYS} | NOMINAL_KEYS:
+        assert math.isfinite(out[k]), k
+    assert out["truth"] == "realistic" and out["robust"] is True
+    assert out["conventional_re_anchor_rate"] > 0.0  # each timed update paid its re-anchoring
+    assert out["mission_re_anchors_mean"] >= 1
+    assert out["nominal_n_missions"] == out["n_missions"] == 1
+
+
+def test_realistic_robust_learned_section(realistic):
+    pytest.importorskip("safetensors")
+    from cikan_ros.governor import LEARNED_NAMES
+    from cikan_ros.learn.bench import learned_section
+
+    cfg, states = realistic
+    conventional_section(cfg, states, 1)
+    out = learned_section(cfg, states, 1)
+    assert "learned_models_missing" not in out
+    for name in LEARNED_NAMES:
+        for k in ("speedup_mean", "speedup_worst", "verify_calls_mean", "nn_accept_rate",
+                  "rmse_tau_s"):
+            assert math.isfinite(out[f"{name}_{k}"]), (name, k)
