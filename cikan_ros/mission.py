@@ -338,6 +338,7 @@ def run_mission(governor: Governor, x_d0: NDArray, seed: int | None = None,
     pred = governor.predictor
     cfg = pred.config
     loop = ClosedLoop(pred)
+    governor.anchor.reset()  # each mission starts on the configured chief
     x = np.array(x_d0, dtype=float)
     check_states(x, "initial deputy state")
     truth = truth or Truth(cfg, seed, loop.n_steps)

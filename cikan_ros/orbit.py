@@ -186,14 +186,31 @@ class KeplerOrbit:
 
     @classmethod
     def from_state(cls, x: ArrayLike, t: float, mu: float) -> "KeplerOrbit":
-        """The osculating orbit of ECI state x (km, km/s) at time t (s since epoch)."""
-        el = state_to_elements(np.asarray(x, dtype=float), mu)
-        a, e = float(el["a"]), float(el["e"])
-        if not e < 1.0:
-            raise StateError(f"state is not on an elliptic orbit (e = {e})")
-        m_t = float(true_to_mean_anomaly(el["nu"], e))
-        n = math.sqrt(mu / a**3)
-        return cls(a, e, float(el["i"]), float(el["raan"]), float(el["argp"]), m_t - n * float(t), mu)
+        """The osculating orbit of ECI state x (km, km/s) at time t (s since epoch).
+
+        Built from the packed form (:func:`osculating_params_kernel`, a few microseconds: a
+        governor re-anchors on every update under a J2 truth); the angles are read off the
+        perifocal vectors P, Q and W = P x Q."""
+        x = np.ascontiguousarray(x, dtype=float)
+        r2, v2 = float(x[:3] @ x[:3]), float(x[3:] @ x[3:])
+        if not (np.all(np.isfinite(x)) and r2 > 0.0 and 0.5 * v2 - mu / math.sqrt(r2) < 0.0):
+            raise StateError(f"state is not on an elliptic orbit: {x}")
+        arr = np.empty(N_PARAMS)
+        osculating_params_kernel(x, mu, arr)
+        n = arr[P_N]
+        arr[P_M0] -= n * float(t)
+        p, q = arr[P_PVEC], arr[P_QVEC]
+        w = np.cross(p, q)
+        inc = math.acos(min(1.0, max(-1.0, float(w[2]))))
+        if math.sin(inc) > 1e-12:
+            raan = math.atan2(float(w[0]), float(-w[1])) % (2 * math.pi)
+            argp = math.atan2(float(p[2]), float(q[2])) % (2 * math.pi)
+        else:  # equatorial: the node is undefined, the periapsis measured from x
+            raan, argp = 0.0, math.atan2(float(p[1]), float(p[0])) % (2 * math.pi)
+        orbit = cls(float(arr[P_A]), float(arr[P_E]), inc, raan, argp, float(arr[P_M0]), mu)
+        arr.setflags(write=False)
+        object.__setattr__(orbit, "_params", arr)
+        return orbit
 
     @property
     def mean_motion(self) -> float:

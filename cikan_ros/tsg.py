@@ -560,8 +560,9 @@ class Predictor:
         :class:`ChiefTable` when t lies on the sample grid, else a private array."""
         t = float(t)
         if self.tparams[T_J2R2] != 0.0:  # rows integrated from the anchored chief at t
-            rows = np.full((self.n_samples, J2_ROW_WIDTH), math.nan)
-            rows[0, :6] = self.orbit.state(t)
+            rows = np.empty((self.n_samples, J2_ROW_WIDTH))
+            rows[:, 6] = math.nan  # not computed yet
+            state_kernel(self.orbit.params, t, rows[0])
             osculating_params_kernel(rows[0], self.orbit.mu, rows[0, J2_ROW_ORBIT])
             rows[0, 6] = 0.0
             return ChiefCache(t, rows, t)
@@ -676,10 +677,17 @@ class ChiefAnchor:
         self.re_anchors = 0
         tol = predictor.config.tsg.chief_anchor_tolerance_km
         self._tol = (tol, tol / predictor.config.tsg.sample_period_s)
+        self._model = np.empty(6)
+
+    def reset(self) -> None:
+        """Back to the configured chief (a mission's start: runs do not depend on earlier ones)."""
+        self.current = self.base
+        self.re_anchors = 0
 
     def __call__(self, x_c: ArrayLike, t: float) -> Predictor:
         x = np.asarray(x_c, dtype=float)
-        model = self.current.orbit.state(float(t))
+        model = self._model
+        state_kernel(self.current.orbit.params, float(t), model)
         dp = float(np.max(np.abs(x[:3] - model[:3])))
         dv = float(np.max(np.abs(x[3:] - model[3:])))
         if dp <= self._tol[0] and dv <= self._tol[1]:

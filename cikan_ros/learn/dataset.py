@@ -126,12 +126,12 @@ def label_missions(cfg_json: str, spec: DatasetSpec, missions: Sequence[int],
     out = []
     for m in missions:
         sigma, split, start_seed = mission_plan(spec, m)
-        try:
-            x0 = sample_start(pred, start_seed, sigma)
+        try:  # a start may have no feasible shift (nominal admissibility, then robust Verify)
+            res = run_mission(gov, sample_start(pred, start_seed, sigma), start_seed)
         except NoFeasibleShiftError:
             out.append({"mission": m, "split": split, "sigma_km": sigma, "n": 0})
             continue
-        lab = update_labels(run_mission(gov, x0), None if governor == "conventional" else pred)
+        lab = update_labels(res, None if governor == "conventional" else pred)
         out.append({"mission": m, "split": split, "sigma_km": sigma, "n": len(lab["t_s"]), **lab})
     return out
 
