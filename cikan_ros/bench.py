@@ -45,7 +45,7 @@ def conventional_section(cfg: Config, states: BenchStates, repeats: int) -> dict
     walls, taus, _, calls, re_anchored = time_updates(gov, states, repeats)
     states.conventional_walls, states.conventional_taus = walls, taus
     init = []
-    for x0 in states.starts:
+    for x0 in states.first_seen:
         runs = []
         for _ in range(repeats):
             start = time.thread_time()

@@ -62,6 +62,9 @@ class BenchStates:
     mission_anchor_calls: list[int] = field(default_factory=list)
     #: Seeds whose start has no feasible first shift under this configuration (not flown).
     infeasible_seeds: list[int | None] = field(default_factory=list)
+    #: The deputy state the governor saw at each start (measured; the start itself under the
+    #: nominal truth): what the first-instant search is timed on.
+    first_seen: list[NDArray] = field(default_factory=list)
     #: Conventional TSG per-state wall times (s), filled by ``conventional_section`` (runs first)
     #: so later sections report speed-ups measured in the same run on the same states.
     conventional_walls: NDArray | None = None
@@ -134,6 +137,7 @@ def collect_states(cfg: Config, n_missions: int = 6) -> BenchStates:
             continue
         out.mission_wall_s.append(time.perf_counter() - start)
         out.starts.append(x0)
+        out.first_seen.append(x0 if res.x_d_seen is None else res.x_d_seen[0])
         out.mission_re_anchors.append(anchor.re_anchors)
         out.mission_anchor_calls.append(rec.calls)
         for s in res.update_states():

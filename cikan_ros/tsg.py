@@ -186,20 +186,30 @@ def tube_step(rp: NDArray, u_max: float, ts: float, rng: float, vrel: float, rho
     # The thruster error of the predicted command (the part proportional to the tube's own
     # command error is in the loop Phi_M = A - B M K of the tube constants).
     eta = rp[R_EPSU] * un + rp[R_DMAX] + rp[R_KG] * rr
+    offset_p = rp[R_GPP] * bp + rp[R_GPV] * bv
+    offset_v = rp[R_GVP] * bp + rp[R_GVV] * bv
     if a_n - m < u_max:
-        if not linear:
-            big_r = (rp[R_C0PP] * rho + rp[R_C0PV] * sig) + (rp[R_DPP] * bp + rp[R_DPV] * bv)
-            big_s = (rp[R_C0VP] * rho + rp[R_C0VV] * sig) + (rp[R_DVP] * bp + rp[R_DVV] * bv)
+        if not linear:  # R, S held the state part of the saturated phase
+            big_r, big_s = ((rp[R_C0PP] * big_r + rp[R_C0PV] * big_s) + (rp[R_DPP] * bp + rp[R_DPV] * bv),
+                            (rp[R_C0VP] * big_r + rp[R_C0VV] * big_s) + (rp[R_DVP] * bp + rp[R_DVV] * bv))
         lam = rp[R_LAM]
         big_r = lam * big_r + rp[R_DPP] * dp + rp[R_DPV] * dv + rp[R_CPE] * eta
         big_s = lam * big_s + rp[R_DVP] * dp + rp[R_DVV] * dv + rp[R_CVE] * eta
         # Whatever the loop does, the commands differ by at most 2 u_max: the open double
         # integrator bounds the error too, and is the smaller bound while the tube is wide.
         du = 2.0 * u_max + eta + grad * rho
-        return (min(big_r + rp[R_GPP] * bp + rp[R_GPV] * bv, rho + ts * sig + 0.5 * ts * ts * du),
-                min(big_s + rp[R_GVP] * bp + rp[R_GVV] * bv, sig + ts * du), big_r, big_s, True)
-    du = u_max * (rp[R_KP] * bp + rp[R_KV] * bv) / (a_n - m) + eta + grad * rho
-    return (rho + ts * sig + 0.5 * ts * ts * du, sig + ts * du, big_r, big_s, False)
+        cap_p = rho + ts * sig + 0.5 * ts * ts * du
+        cap_v = sig + ts * du
+        # the transient part is at most the whole error plus the offset's response
+        big_r = min(big_r, cap_p + offset_p)
+        big_s = min(big_s, cap_v + offset_v)
+        return min(big_r + offset_p, cap_p), min(big_s + offset_v, cap_v), big_r, big_s, True
+    # Saturated: a constant navigation error only displaces the target the deputy flies to
+    # (the offset G b, as in the linear loop); its change per sample turns the thrust.
+    du = u_max * (rp[R_KP] * dp + rp[R_KV] * dv) / (a_n - m) + eta + grad * rho
+    big_r = big_r + ts * big_s + 0.5 * ts * ts * du
+    big_s = big_s + ts * du
+    return big_r + offset_p, big_s + offset_v, big_r, big_s, False
 
 
 @nb.njit(cache=True)
@@ -263,8 +273,8 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
         if robust:
             rng = math.sqrt((x[0] - xc[0]) ** 2 + (x[1] - xc[1]) ** 2 + (x[2] - xc[2]) ** 2)
             if j == 0:  # the measured state: off the truth by the navigation error
-                rho = rp[R_NPF] + rp[R_NPG] * rng
-                sig = rp[R_NVF] + rp[R_NVG] * rng
+                rho = big_r = rp[R_NPF] + rp[R_NPG] * rng
+                sig = big_s = rp[R_NVF] + rp[R_NVG] * rng
             if not robust_h1_ok(x, xc, cp, rp[R_SINA], rho):
                 return False
             if not robust_h3_ok(x, xc, cp, rho, sig):

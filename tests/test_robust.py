@@ -153,3 +153,21 @@ def test_cli_refuses_bounds_beyond_the_loop_and_bad_bounds():
                              capture_output=True, text=True, timeout=120)
         assert out.returncode == 2, out.stderr
         assert out.stderr.count("\n") == 1 and "Traceback" not in out.stderr
+
+
+def test_zeta_interval_verifies_both_ends():
+    """tsg.robust_zeta_s = z: Verify(tau) passes iff the nominal Verify passes at tau - z, tau and
+    tau + z (the paper's interval, sampled at its ends)."""
+    nominal = Predictor.from_config(load_config())
+    zeta = Predictor.from_config(load_config(**{"tsg.robust_zeta_s": 0.5}))
+    x = sample_start(nominal, 2)
+    for tau in np.arange(-12.0, -4.0, 0.25):
+        expect = all(nominal.verify(x, 0.0, float(t)) for t in (tau - 0.5, tau, tau + 0.5))
+        assert zeta.verify(x, 0.0, float(tau)) == expect
+
+
+def test_a_start_robust_verify_rejects_is_one_line():
+    out = subprocess.run([sys.executable, "-m", "cikan_ros.cli", "mission", "--offline", "--seed", "11",
+                          "--truth", "realistic", "--robust"], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 2 and "no feasible time shift" in out.stderr
+    assert out.stderr.count("\n") == 1
