@@ -192,21 +192,21 @@ class KeplerOrbit:
         governor re-anchors on every update under a J2 truth); the angles are read off the
         perifocal vectors P, Q and W = P x Q."""
         x = np.ascontiguousarray(x, dtype=float)
-        r2, v2 = float(x[:3] @ x[:3]), float(x[3:] @ x[3:])
-        if not (np.all(np.isfinite(x)) and r2 > 0.0 and 0.5 * v2 - mu / math.sqrt(r2) < 0.0):
+        a, b, c, d, e, f = x.tolist()
+        r = math.sqrt(a * a + b * b + c * c)
+        if not (math.isfinite(r + d + e + f) and r > 0.0 and 0.5 * (d * d + e * e + f * f) < mu / r):
             raise StateError(f"state is not on an elliptic orbit: {x}")
         arr = np.empty(N_PARAMS)
         osculating_params_kernel(x, mu, arr)
-        n = arr[P_N]
-        arr[P_M0] -= n * float(t)
-        p, q = arr[P_PVEC], arr[P_QVEC]
-        w = np.cross(p, q)
-        inc = math.acos(min(1.0, max(-1.0, float(w[2]))))
+        arr[P_M0] -= arr[P_N] * float(t)
+        px, py, pz, qx, qy, qz = arr[5:11].tolist()
+        wx, wy, wz = py * qz - pz * qy, pz * qx - px * qz, px * qy - py * qx
+        inc = math.acos(min(1.0, max(-1.0, wz)))
         if math.sin(inc) > 1e-12:
-            raan = math.atan2(float(w[0]), float(-w[1])) % (2 * math.pi)
-            argp = math.atan2(float(p[2]), float(q[2])) % (2 * math.pi)
+            raan = math.atan2(wx, -wy) % (2 * math.pi)
+            argp = math.atan2(pz, qz) % (2 * math.pi)
         else:  # equatorial: the node is undefined, the periapsis measured from x
-            raan, argp = 0.0, math.atan2(float(p[1]), float(p[0])) % (2 * math.pi)
+            raan, argp = 0.0, math.atan2(py, px) % (2 * math.pi)
         orbit = cls(float(arr[P_A]), float(arr[P_E]), inc, raan, argp, float(arr[P_M0]), mu)
         arr.setflags(write=False)
         object.__setattr__(orbit, "_params", arr)

@@ -285,7 +285,13 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
             if h3_approach_velocity_kernel(x, xc, cp) > 0.0:
                 return False
         if j2r2 != 0.0:  # the controller's virtual target: the chief's own orbit, tau away
-            nu_v = state_kernel(xc[7:7 + N_PARAMS], tau, xv)
+            if j == 0:
+                ev = eccentric_anomaly_kernel(xc[7 + P_M0] + xc[7 + P_N] * tau, xc[7 + P_E])
+                nu_v = state_from_anomaly_kernel(xc[7:7 + N_PARAMS], ev, xv)
+            else:  # Newton from the previous sample's anomaly, advanced by one sample
+                e = xc[7 + P_E]
+                nu_v, ev = state_warm_kernel(xc[7:7 + N_PARAMS], tau,
+                                             ev + xc[7 + P_N] * ts / (1.0 - e * math.cos(ev)), xv)
         elif j == 0:
             ev = eccentric_anomaly_kernel(orb[P_M0] + orb[P_N] * (t + tau), e)
             nu_v = state_from_anomaly_kernel(orb, ev, xv)
@@ -527,7 +533,11 @@ class Predictor:
     def with_orbit(self, orbit: KeplerOrbit) -> "Predictor":
         """This model with another chief orbit (a re-anchored chief): same gains, constraints,
         prediction and robustness parameters, a chief table of its own."""
-        return dataclasses.replace(self, orbit=orbit)
+        new = object.__new__(Predictor)  # dataclasses.replace, without its per-call overhead
+        new.__dict__.update(self.__dict__)
+        object.__setattr__(new, "orbit", orbit)
+        new.__post_init__()
+        return new
 
     @property
     def tol_ns(self) -> int:
@@ -702,7 +712,8 @@ class ChiefAnchor:
         dv = float(np.max(np.abs(x[3:] - model[3:])))
         if dp <= self._tol[0] and dv <= self._tol[1]:
             return self.current
-        check_states(x, "chief state x_c")
+        if not math.isfinite(dp + dv):
+            check_states(x, "chief state x_c")
         self.current = self.base.with_orbit(KeplerOrbit.from_state(x, float(t), self.base.orbit.mu))
         self.re_anchors += 1
         return self.current
