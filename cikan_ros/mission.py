@@ -305,10 +305,13 @@ class ShiftAudit:
     decisions: int
 
 
-def audit_shifts(predictor: Predictor, x_d: NDArray, tau: NDArray) -> ShiftAudit:
+def audit_shifts(predictor: Predictor, x_d: NDArray, tau: NDArray, x_c: NDArray | None = None
+                 ) -> ShiftAudit:
     """Audit the shift in force ``tau`` (K+1,) (NaN: none yet) against the deputy states ``x_d``
-    (K+1, 6) as the governor saw them (a bag's states are; offline ones go through SI first)."""
+    (K+1, 6) as the governor saw them (a bag's states are; offline ones go through SI first),
+    with the chief anchored on the chief states ``x_c`` it saw (None: the configured chief)."""
     loop = ClosedLoop(predictor)
+    anchor = ChiefAnchor(predictor)
     unverified = off_schedule = decisions = 0
     prev: float | None = None
     prev_ok = False
@@ -321,8 +324,9 @@ def audit_shifts(predictor: Predictor, x_d: NDArray, tau: NDArray) -> ShiftAudit
         if not (due or changed):
             continue
         off_schedule += changed and not due
-        ok = (not changed and prev_ok) or (tau[k] <= 0.0 and predictor.verify(x_d[k], loop.time(k),
-                                                                            float(tau[k])))
+        t = loop.time(k)
+        pred = predictor if x_c is None else anchor(x_c[k], t)
+        ok = (not changed and prev_ok) or (tau[k] <= 0.0 and pred.verify(x_d[k], t, float(tau[k])))
         unverified += not ok
         prev, prev_ok = float(tau[k]), ok
     return ShiftAudit(int(unverified), int(off_schedule), int(decisions))

@@ -1,7 +1,8 @@
 """controller_node: saturated FTRE control toward the virtual target x_v(t) = x_c(t + tau).
 
-For each step k it pairs /deputy/odom and /tsg/time_shift by stamp, computes
-u = sat(-K(nu_v)(x_d - x_v)) with the library's ``ftre_control`` and publishes
+For each step k it pairs /deputy/odom, /chief/odom and /tsg/time_shift by stamp, computes
+u = sat(-K(nu_v)(x_d - x_v)) with x_v the measured chief propagated by tau (the library's
+``ClosedLoop.command``, which anchors the chief on the state it receives) and publishes
 /deputy/accel_cmd (AccelStamped, m/s^2, ECI) stamped t_k.
 
 If the shift of a step does not come within ``controller.tau_deadline_s`` (wall), the controller
@@ -25,7 +26,7 @@ from sensor_msgs.msg import TimeReference
 
 from cikan_ros.mission import ClosedLoop
 from cikan_ros.ros import convert as cv
-from cikan_ros.ros.graph import (PATH_HOLD, ACCEL_CMD, DEPUTY_ODOM, DIAGNOSTICS, QOS_STREAM,
+from cikan_ros.ros.graph import (PATH_HOLD, ACCEL_CMD, CHIEF_ODOM, DEPUTY_ODOM, DIAGNOSTICS, QOS_STREAM,
                                  TIME_SHIFT, Readiness, cached_predictor, declare_config, qos_for,
                                  required_readers, run_node)
 from cikan_ros.ros.params import NodeSpec, declare_parameters
@@ -48,7 +49,7 @@ class ControllerNode(Node):
         pred = cached_predictor(cfg)
         self.loop = ClosedLoop(pred)
         x0 = pred.orbit.state(0.0)
-        self.loop.command(0, 0.0, x0, x0)  # load the compiled kernels now
+        self.loop.command(0, 0.0, x0, x0)  # load the compiled kernels now (the anchor stays put)
         self.timeline = cv.Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
         self.n_steps = self.loop.n_steps
         self.tau: float | None = None     # last verified shift (s)
@@ -67,6 +68,7 @@ class ControllerNode(Node):
 
     def join(self) -> None:
         self.create_subscription(Odometry, DEPUTY_ODOM, self.on_deputy, QOS_STREAM)
+        self.create_subscription(Odometry, CHIEF_ODOM, self.on_chief, QOS_STREAM)
         self.create_subscription(TimeReference, TIME_SHIFT, self.on_shift, QOS_STREAM)
         self.get_logger().info("ready")
 
@@ -78,19 +80,25 @@ class ControllerNode(Node):
         self.diag("warn", text, stamp, {"event": "rejected"})
 
     def on_deputy(self, msg: Odometry) -> None:
+        self.on_state(msg, "deputy", "x")
+
+    def on_chief(self, msg: Odometry) -> None:
+        self.on_state(msg, "chief", "xc")
+
+    def on_state(self, msg: Odometry, who: str, key: str) -> None:
         stamp = cv.time_to_ns(msg.header.stamp)
         try:
             k = self.timeline.step(stamp)
             x = cv.state_from_odom(msg)
         except cv.MessageError as exc:
-            self.reject(f"deputy state rejected: {exc}", stamp)
+            self.reject(f"{who} state rejected: {exc}", stamp)
             return
         if stamp <= self.last_stamp:
-            self.reject(f"stale deputy state for step {k} rejected", stamp)
+            self.reject(f"stale {who} state for step {k} rejected", stamp)
             return
         if k >= self.n_steps:
             return  # final state: no command
-        self.pending.setdefault(stamp, {})["x"] = x
+        self.pending.setdefault(stamp, {})[key] = x
         self.try_command(stamp)
 
     def on_shift(self, msg: TimeReference) -> None:
@@ -109,10 +117,10 @@ class ControllerNode(Node):
 
     def try_command(self, stamp: int) -> None:
         entry = self.pending[stamp]
-        if "x" not in entry:
+        if "x" not in entry or "xc" not in entry:
             return
         if "tau" in entry:
-            self.command(stamp, entry["x"], *entry["tau"])
+            self.command(stamp, entry["x"], entry["xc"], *entry["tau"])
         elif self.waiting != stamp:
             self.waiting = stamp
             self.waiting_since = time.perf_counter()
@@ -134,18 +142,15 @@ class ControllerNode(Node):
             return
         self.diag("warn", "governor missed its deadline: holding the last verified time shift", stamp,
                   {"event": "hold", "tau_s": self.tau})
-        self.command(stamp, self.pending[stamp]["x"], self.tau, PATH_HOLD)
+        entry = self.pending[stamp]
+        self.command(stamp, entry["x"], entry["xc"], self.tau, PATH_HOLD)
 
-    def command(self, stamp: int, x_d: Any, tau: float, source: str) -> None:
-        """u toward x_v = x_c(t_k + tau), published stamped t_k."""
+    def command(self, stamp: int, x_d: Any, x_c: Any, tau: float, source: str) -> None:
+        """u toward x_v = x_c(t_k + tau) (x_c the measured chief), published stamped t_k."""
         self.deadline.cancel()
         self.lost_deadline.cancel()
         self.waiting = None
-        k = self.timeline.step(stamp)
-        # sim_node flies the configured (two-body) chief, so that is the chief the controller
-        # anchors on; a measured /chief/odom is not subscribed to yet (ClosedLoop.command).
-        x_c = self.loop.predictor.orbit.state(self.loop.time(k))
-        u = self.loop.command(k, tau, x_d, x_c)
+        u = self.loop.command(self.timeline.step(stamp), tau, x_d, x_c)
         self.pub_accel.publish(cv.accel_msg(u, stamp))
         self.tau = tau
         self.last_stamp = stamp

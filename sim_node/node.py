@@ -1,9 +1,12 @@
-"""sim_node: integrates the chief (analytic Kepler) and the deputy (the library's Plant, ZOH), owns
-the lockstep and the clock (as fast as the graph answers, or paced by ``sim.max_rtf``).
+"""sim_node: flies the truth (the library's :class:`~cikan_ros.truth.Truth`: the chief and the deputy
+under the configured gravity, thruster errors and disturbance, ZOH), owns the lockstep and the clock
+(as fast as the graph answers, or paced by ``sim.max_rtf``).
 
-Step k: publish /clock = t_k, /chief/odom and /deputy/odom stamped t_k (SI, ECI); wait for the
-/deputy/accel_cmd stamped t_k; log the constraint margins and the applied thrust in /diagnostics;
-integrate to t_{k+1}. A command that does not come within ``sim.command_deadline_s`` (wall) is
+Step k: publish /clock = t_k, the MEASURED states on /chief/odom and /deputy/odom stamped t_k (SI,
+ECI, with the navigation covariance) and the true ones on /truth/chief/odom and /truth/deputy/odom;
+wait for the /deputy/accel_cmd stamped t_k; apply it through the thrusters (/truth/deputy/accel:
+the acceleration as applied); log the constraint margins on the truth and the applied thrust in
+/diagnostics; integrate to t_{k+1}. A command that does not come within ``sim.command_deadline_s`` (wall) is
 replaced by zero thrust and reported; after one miss the sim waits only ``sim.lost_deadline_s``
 per step until the controller answers again. Non-finite, out-of-range, off-grid or stale
 commands are rejected with a diagnostic. The process ends after T_sim (or docking, with
@@ -25,12 +28,12 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rosgraph_msgs.msg import Clock as ClockMsg
 
 from cikan_ros.constraints import margins
-from cikan_ros.dynamics import Plant
 from cikan_ros.mission import ClosedLoop, nominal_start, sample_start
 from cikan_ros.ros import convert as cv
 from cikan_ros.ros.graph import (ACCEL_CMD, CHIEF_ODOM, CLOCK, DEPUTY_ODOM, DIAGNOSTICS, QOS_STREAM,
-                                 Readiness, cached_predictor, declare_config, qos_for, required_readers,
-                                 run_node)
+                                 TRUTH_ACCEL, TRUTH_CHIEF, TRUTH_DEPUTY, Readiness, cached_predictor,
+                                 declare_config, qos_for, required_readers, run_node)
+from cikan_ros.truth import Truth
 from cikan_ros.ros.params import NodeSpec, declare_parameters
 
 NAME = "sim_node"
@@ -52,13 +55,13 @@ class SimNode(Node):
         self.stop_on_dock = bool(p["sim.stop_on_dock"])
         peers, timeout = [str(n) for n in p["graph.peers"]], float(p["graph.startup_timeout_s"])
         pred = cached_predictor(cfg)
-        self.orbit = pred.orbit
-        self.plant = Plant(pred.orbit.mu, cfg.mission.plant_substeps)
         self.x = nominal_start(pred) if seed < 0 else sample_start(pred, seed)
         self.timeline = cv.Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
         self.loop = ClosedLoop(pred)
         self.n_steps = self.loop.n_steps
+        self.truth = Truth(cfg, None if seed < 0 else seed, self.n_steps)
         self.u_max = cfg.control.u_max_kmps2
+        self.u_limit = self.u_max * self.truth.max_thrust_factor  # h2 on the truth
         self.k = 0
         self.x_c = np.zeros(6)
         self.waiting = False
@@ -72,6 +75,9 @@ class SimNode(Node):
         self.pub_chief = self.create_publisher(Odometry, CHIEF_ODOM, QOS_STREAM)
         self.pub_deputy = self.create_publisher(Odometry, DEPUTY_ODOM, QOS_STREAM)
         self.pub_diag = self.create_publisher(DiagnosticArray, DIAGNOSTICS, qos_for(DIAGNOSTICS))
+        self.pub_truth_chief = self.create_publisher(Odometry, TRUTH_CHIEF, QOS_STREAM)
+        self.pub_truth_deputy = self.create_publisher(Odometry, TRUTH_DEPUTY, QOS_STREAM)
+        self.pub_truth_accel = self.create_publisher(AccelStamped, TRUTH_ACCEL, QOS_STREAM)
         self.create_subscription(AccelStamped, ACCEL_CMD, self.on_accel, QOS_STREAM)
         self.steady = steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.deadline = self.create_timer(self.deadline_s, self.on_deadline, clock=steady, autostart=False)
@@ -79,7 +85,8 @@ class SimNode(Node):
                                                autostart=False)
         waits = [(p, required_readers(t, peers)) for p, t in
                  ((self.pub_deputy, DEPUTY_ODOM), (self.pub_chief, CHIEF_ODOM), (self.pub_clock, CLOCK),
-                  (self.pub_diag, DIAGNOSTICS))]
+                  (self.pub_diag, DIAGNOSTICS), (self.pub_truth_chief, TRUTH_CHIEF),
+                  (self.pub_truth_deputy, TRUTH_DEPUTY), (self.pub_truth_accel, TRUTH_ACCEL))]
         Readiness(self, waits, timeout, self.start).start()
 
     # -- lockstep -------------------------------------------------------------------------------
@@ -94,10 +101,14 @@ class SimNode(Node):
     def publish_state(self) -> None:
         """Publish the states of step k, then wait for its command (or end the mission)."""
         stamp = self.stamp()
-        self.x_c = self.orbit.state(self.timeline.seconds(stamp))
+        truth = self.truth
+        self.x_c = truth.chief_state(self.k)
+        x_seen, cov = truth.measure_deputy(self.k, self.x)
         self.pub_clock.publish(cv.clock_msg(stamp))
-        self.pub_chief.publish(cv.odom_msg(self.x_c, stamp, "chief"))
-        self.pub_deputy.publish(cv.odom_msg(self.x, stamp, "deputy"))
+        self.pub_truth_chief.publish(cv.odom_msg(self.x_c, stamp, "chief"))
+        self.pub_truth_deputy.publish(cv.odom_msg(self.x, stamp, "deputy"))
+        self.pub_chief.publish(cv.odom_msg(truth.measure_chief(self.k), stamp, "chief", 0.0 * cov))
+        self.pub_deputy.publish(cv.odom_msg(x_seen, stamp, "deputy", cov))
         if self.loop.finished(self.k, self.x, self.x_c, self.stop_on_dock):
             self.finish()
             return
@@ -146,14 +157,16 @@ class SimNode(Node):
         if source == "command":
             decision = self.k == 0 or self.loop.update_due(self.k)
             (self.latency_update_ms if decision else self.latency_ms).append(ms)
-        m = margins(self.x, self.x_c, u, self.cfg.constraints, self.u_max)
+        u = self.truth.applied_thrust(u)  # through the thrusters: the acceleration as applied
+        self.pub_truth_accel.publish(cv.accel_msg(u, self.stamp()))
+        m = margins(self.x, self.x_c, u, self.cfg.constraints, self.u_limit)
         level = "ok" if source == "command" else "warn"
         text = "step" if source == "command" else "controller missed its deadline: zero thrust"
         self.pub_diag.publish(cv.diagnostic(NAME, level, text, self.stamp(), {
             "k": self.k, "event": "step", "thrust": source, "u_kmps2": u,
             "h1_normalised": m.h1_normalised[0], "h2_kmps2": m.h2[0], "h3_kmps": m.h3[0],
             "latency_ms": ms}))
-        self.x = self.plant.step(self.x, u, self.cfg.control.period_s)
+        self.x = self.truth.step_deputy(self.k, self.x, u)
         self.k += 1
         pause = self.wall0 + self.k * self.cfg.control.period_s / self.max_rtf - time.perf_counter() \
             if self.max_rtf > 0 else 0.0
@@ -173,7 +186,7 @@ class SimNode(Node):
 
     def finish(self) -> None:
         wall = time.perf_counter() - self.wall0
-        m = margins(self.x, self.x_c, np.zeros(3), self.cfg.constraints, self.u_max)
+        m = margins(self.x, self.x_c, np.zeros(3), self.cfg.constraints, self.u_limit)
         steady = np.array(self.latency_ms)  # steps where the governor only holds tau
         sim_s = self.k * self.cfg.control.period_s
         values = {"k": self.k, "event": "complete", "steps": self.k, "wall_s": wall,
@@ -192,7 +205,8 @@ class SimNode(Node):
         """Let every reliable reader acknowledge the last messages before the process ends."""
         if not self.done.done():
             return
-        for pub in (self.pub_clock, self.pub_chief, self.pub_deputy, self.pub_diag):
+        for pub in (self.pub_clock, self.pub_chief, self.pub_deputy, self.pub_diag,
+                    self.pub_truth_chief, self.pub_truth_deputy, self.pub_truth_accel):
             try:
                 pub.wait_for_all_acked(Duration(seconds=2))
             except Exception:  # the context may already be shut down by a signal

@@ -151,3 +151,42 @@ def test_all_six_governors(ros_env: int, tmp_path: Path) -> None:
             _learned_mission(name, tmp_path / name)
     if missing:
         pytest.skip(f"the other governors passed; no shipped model for {missing}")
+
+
+def test_realistic_truth_and_robust_verify_graph_equals_offline(tmp_path, ros_env) -> None:
+    """`cikan mission --truth realistic --robust --seed 2` as the ROS graph: the same run as the
+    offline loop (tau history, true states, applied thrust), 0 violations and docked on the truth,
+    and the bag holds the truth and the measured states (with their covariance), read by rosbags."""
+    from cikan_ros.config import truth_overrides
+    from cikan_ros.mission import sample_start
+    from cikan_ros.truth import Truth
+
+    cfg = load_config(**truth_overrides("realistic"), **{"tsg.robust": True})
+    bag = tmp_path / "bag"
+    metrics = run_ros_mission(cfg, governor="conventional", seed=2, bag=bag)
+    gov = make_governor("conventional", cfg, cached_predictor(cfg))
+    offline = run_mission(gov, sample_start(gov.predictor, 2), 2)
+    msgs = rosbags_messages(bag)
+    stamps, seen = states(msgs, "/deputy/odom")
+    _, x_d = states(msgs, "/truth/deputy/odom")
+    _, x_c = states(msgs, "/truth/chief/odom")
+    np.testing.assert_array_equal(tau_history(msgs, len(stamps), stamps), offline.tau)
+    np.testing.assert_allclose(x_d, offline.x_d, rtol=1e-15, atol=0)  # SI round trip only
+    np.testing.assert_allclose(x_c, offline.x_c, rtol=1e-15, atol=0)
+    steps = sim_steps(msgs)
+    u = np.array([[float(w) for w in steps[k]["u_kmps2"].split()] for k in range(len(stamps) - 1)])
+    np.testing.assert_array_equal(u, offline.u[:-1])
+    # measured = truth + navigation error within its bound; the covariance says a third of it
+    truth = Truth(cfg, 2, len(stamps) - 1)
+    err = np.linalg.norm(seen[:, :3] - x_d[:, :3], axis=1)
+    rng = np.linalg.norm(x_d[:, :3] - x_c[:, :3], axis=1)
+    bound = np.array([truth.nav_bounds(r)[0] for r in rng])
+    assert np.all(err <= bound + 1e-9) and err.max() > 0  # km; the SI round trip moves ~1e-12 km
+    cov = np.array(msgs["/deputy/odom"][len(stamps) // 2][1].pose.covariance).reshape(6, 6)
+    assert cov[0, 0] > 0 and cov[0, 0] == cov[1, 1] == cov[2, 2] and cov[3, 3] == 0
+    off = offline.metrics()
+    for key in ("success", "violations", "tau0_s", "t_tau_zero_s", "delta_v_kmps", "final_distance_m"):
+        assert metrics[key] == off[key], key
+    assert metrics["success"] and metrics["violations"] == 0
+    h1n, h3 = independent_check(x_d, x_c)
+    assert h1n <= 1e-9 and h3 <= 1e-9

@@ -87,11 +87,15 @@ def _finite(values: NDArray, what: str) -> NDArray:
     return values
 
 
-def odom_msg(x_km: ArrayLike, stamp_ns: int, child_frame: str) -> Odometry:
+def odom_msg(x_km: ArrayLike, stamp_ns: int, child_frame: str,
+             cov_km: ArrayLike | None = None) -> Odometry:
     """nav_msgs/Odometry of an ECI state [r (km); v (km/s)]: position in m, velocity in m/s.
 
     The orientation is the identity, so the child frame's axes are ECI's and the twist (expressed
-    in the child frame, as nav_msgs asks) is the ECI velocity.
+    in the child frame, as nav_msgs asks) is the ECI velocity. ``cov_km`` (6, 6; km^2, km^2/s^2):
+    the state's covariance, written in m^2 and m^2/s^2 into the position block of the pose
+    covariance and the linear block of the twist covariance (orientation and angular rate are
+    not estimated: their blocks stay 0).
     """
     x_m = km_to_m(x_km)
     msg = Odometry()
@@ -103,7 +107,24 @@ def odom_msg(x_km: ArrayLike, stamp_ns: int, child_frame: str) -> Odometry:
     msg.pose.pose.orientation.w = 1.0
     v = msg.twist.twist.linear
     v.x, v.y, v.z = (float(w) for w in x_m[3:])
+    if cov_km is not None:
+        cov = np.asarray(cov_km, dtype=float) * 1e6  # km^2 -> m^2
+        pose = np.zeros((6, 6))
+        twist = np.zeros((6, 6))
+        pose[:3, :3] = cov[:3, :3]
+        twist[:3, :3] = cov[3:, 3:]
+        msg.pose.covariance = [float(c) for c in pose.ravel()]
+        msg.twist.covariance = [float(c) for c in twist.ravel()]
     return msg
+
+
+def covariance_from_odom(msg: Odometry) -> NDArray:
+    """The state covariance (6, 6; km^2, km^2/s^2) an Odometry message carries (position block of
+    the pose covariance, linear block of the twist covariance; cross terms are not carried)."""
+    out = np.zeros((6, 6))
+    out[:3, :3] = np.asarray(msg.pose.covariance, dtype=float).reshape(6, 6)[:3, :3]
+    out[3:, 3:] = np.asarray(msg.twist.covariance, dtype=float).reshape(6, 6)[:3, :3]
+    return out * 1e-6
 
 
 def state_from_odom(msg: Odometry) -> NDArray:

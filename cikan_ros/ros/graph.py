@@ -43,6 +43,11 @@ ACCEL_CMD = "/deputy/accel_cmd"
 DIAGNOSTICS = "/diagnostics"
 #: The governor announces which governor flies (diagnostic_msgs/DiagnosticStatus, latched).
 GOVERNOR_INFO = "/tsg/governor"
+#: The truth (the simulator's own states and the thrust as applied), for the record only: the
+#: governor and the controller read the measured states above.
+TRUTH_CHIEF = "/truth/chief/odom"
+TRUTH_DEPUTY = "/truth/deputy/odom"
+TRUTH_ACCEL = "/truth/deputy/accel"
 
 #: Topic -> ROS type name of every topic of the graph.
 TOPIC_TYPES: dict[str, str] = {
@@ -52,17 +57,23 @@ TOPIC_TYPES: dict[str, str] = {
     TIME_SHIFT: "sensor_msgs/msg/TimeReference",
     ACCEL_CMD: "geometry_msgs/msg/AccelStamped",
     DIAGNOSTICS: "diagnostic_msgs/msg/DiagnosticArray",
+    TRUTH_CHIEF: "nav_msgs/msg/Odometry",
+    TRUTH_DEPUTY: "nav_msgs/msg/Odometry",
+    TRUTH_ACCEL: "geometry_msgs/msg/AccelStamped",
 }
 
 #: Which nodes read a topic (the recorder reads all): what a publisher waits for before starting.
 #: /clock readers are not awaited: rclpy's use_sim_time subscription is an implementation detail.
 CONSUMERS: dict[str, tuple[str, ...]] = {
     CLOCK: (),
-    CHIEF_ODOM: ("governor",),
+    CHIEF_ODOM: ("governor", "controller"),
     DEPUTY_ODOM: ("governor", "controller"),
     TIME_SHIFT: ("controller",),
     ACCEL_CMD: ("sim",),
     DIAGNOSTICS: (),
+    TRUTH_CHIEF: (),
+    TRUTH_DEPUTY: (),
+    TRUTH_ACCEL: (),
 }
 
 #: /tsg/time_shift source when no decision was made at this step: the last verified shift holds.

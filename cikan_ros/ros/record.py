@@ -2,7 +2,9 @@
 rosbags), so the ROS graph reports exactly the metrics of the offline loop.
 
 The typed topics are enough (any governor keeping the topic contract, see the README). Per step
-k (stamp t_k): x_d, x_c from the odometry; the shift in force from /tsg/time_shift (the first
+k (stamp t_k): x_d, x_c from the truth's odometry (/truth/*; a bag without them, recorded before
+the truth had topics of its own, from the measured odometry), and the measured states the
+governor saw from /deputy/odom and /chief/odom; the shift in force from /tsg/time_shift (the first
 valid shift stamped t_k, held forward where none came, as the controller does; NaN before the
 first); the applied thrust from /deputy/accel_cmd (the first valid command stamped t_k, zero
 where none came, as the simulator does). The decisions are the shifts at the first step and at
@@ -30,7 +32,8 @@ from ..governor import UpdateRecord
 from ..mission import MissionResult, Schedule
 from ..units import m_to_km
 from .convert import MessageError, Timeline, accel_from_msg, diagnostic_values, floats, shift_from_msg, time_to_ns
-from .graph import ACCEL_CMD, CHIEF_ODOM, DEPUTY_ODOM, DIAGNOSTICS, TIME_SHIFT
+from .graph import (ACCEL_CMD, CHIEF_ODOM, DEPUTY_ODOM, DIAGNOSTICS, TIME_SHIFT, TRUTH_ACCEL,
+                    TRUTH_CHIEF, TRUTH_DEPUTY)
 
 
 #: Integer values of the simulator's summary record.
@@ -79,14 +82,23 @@ def mission_from_bag(path: str | Path, cfg: Config, governor: str) -> tuple[Miss
     mission. ``missing_shifts``: steps 0..K-1 with no valid time shift (the controller held)."""
     msgs = read_bag(path)
     tl = Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
-    deputy = {tl.step(time_to_ns(m.header.stamp)): _state(m) for _, m in msgs.get(DEPUTY_ODOM, [])}
-    chief = {tl.step(time_to_ns(m.header.stamp)): _state(m) for _, m in msgs.get(CHIEF_ODOM, [])}
-    if not deputy or sorted(deputy) != list(range(len(deputy))) or sorted(chief) != sorted(deputy):
-        raise CikanError(f"bag {path}: the deputy/chief states do not cover steps 0..K without gaps")
+    def states(topic: str) -> dict[int, np.ndarray]:
+        return {tl.step(time_to_ns(m.header.stamp)): _state(m) for _, m in msgs.get(topic, [])}
+
+    seen_d, seen_c = states(DEPUTY_ODOM), states(CHIEF_ODOM)
+    has_truth = TRUTH_DEPUTY in msgs
+    deputy, chief = (states(TRUTH_DEPUTY), states(TRUTH_CHIEF)) if has_truth else (seen_d, seen_c)
+    for d, c, what in ((deputy, chief, "true"), (seen_d, seen_c, "measured")):
+        if not d or sorted(d) != list(range(len(d))) or sorted(c) != sorted(d):
+            raise CikanError(f"bag {path}: the {what} deputy/chief states do not cover steps 0..K "
+                             "without gaps")
     n = len(deputy)
     u_max = cfg.control.u_max_kmps2
+    limit = u_max * (1.0 + cfg.truth.bound("thrust_bias_max"))
     shifts = _first_valid(msgs.get(TIME_SHIFT, []), tl, lambda m: shift_from_msg(m)[1:])
     commands = _first_valid(msgs.get(ACCEL_CMD, []), tl, lambda m: accel_from_msg(m, u_max))
+    if has_truth:  # the thrust as applied (the simulator's step records below take precedence)
+        commands = _first_valid(msgs.get(TRUTH_ACCEL, []), tl, lambda m: accel_from_msg(m, 2.0 * limit))
     applied: dict[int, np.ndarray] = {}
     held: dict[int, float] = {}
     recorded: dict[int, UpdateRecord] = {}
@@ -129,10 +141,13 @@ def mission_from_bag(path: str | Path, cfg: Config, governor: str) -> tuple[Miss
     x_d = np.array([deputy[k] for k in range(n)])
     x_c = np.array([chief[k] for k in range(n)])
     t = np.array([tl.seconds(tl.stamp_ns(k)) for k in range(n)])
-    m = margins(x_d, x_c, u, cfg.constraints, u_max)
+    m = margins(x_d, x_c, u, cfg.constraints, limit)
     m.h2[-1] = math.nan  # no command is applied at the final instant
+    seen = None if not has_truth or cfg.truth.is_nominal else (
+        np.array([seen_d[k] for k in range(n)]), np.array([seen_c[k] for k in range(n)]))
     result = MissionResult(cfg, governor, t, x_d, x_c, u, tau, m, initial,
-                           np.array([t[k] for k, _ in updates]), [r for _, r in updates])
+                           np.array([t[k] for k, _ in updates]), [r for _, r in updates],
+                           *(seen or (None, None)), limit)
     return result, summary
 
 
@@ -146,7 +161,9 @@ def recorded_metrics(path: str | Path, cfg: Config, governor: str) -> tuple[Miss
     from ..tsg import Predictor
 
     result, summary = mission_from_bag(path, cfg, governor)
-    audit = audit_shifts(Predictor.from_config(cfg), result.x_d, result.tau)
+    seen_d = result.x_d if result.x_d_seen is None else result.x_d_seen
+    seen_c = None if result.x_c_seen is None else result.x_c_seen
+    audit = audit_shifts(Predictor.from_config(cfg), seen_d, result.tau, seen_c)
     # What the bag does not tell (decision wall times without governor_node's records) is None.
     metrics = {k: None if isinstance(v, float) and not math.isfinite(v) else v
                for k, v in result.metrics().items()}
