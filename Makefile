@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 EXTRAS := ros,learn,report,dev
 
-.PHONY: install run test bench montecarlo results models models-prev clean
+.PHONY: install run test bench montecarlo results robustness models models-prev clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -31,6 +31,21 @@ results: $(STAMP)
 	$(BIN)/cikan montecarlo --runs 100 --governor all --workers 2 --out runs/paper
 	$(BIN)/cikan report runs/paper --out docs/results --notes docs/results_notes.md \
 		--title "Results: the paper's Table 2 and Figures 3-4 reproduced, with the keep rule beside Algorithm 1"
+
+# The robustness campaign (docs/robustness.md): the conventional TSG and the five families under
+# the keep rule, nominal and robust Verify, the realistic truth at scales 0, 0.5, 1 and 2, on the
+# Table 2 starts (seeds 1-100); then its table and figure (docs/results/robustness.md). Resumes.
+ROBUST_GOVERNORS := conventional,cikan,grbf,rswaf,relu,gelu
+ROBUST_SCALES    := 0 0.5 1 2
+ROBUST_RUNS      ?= 100
+robustness: $(STAMP)
+	for s in $(ROBUST_SCALES); do \
+	  $(BIN)/cikan montecarlo --runs $(ROBUST_RUNS) --governor $(ROBUST_GOVERNORS) --workers 2 \
+	    --truth realistic --set truth.scale=$$s --out runs/robustness/nominal-s$$s || exit 1; \
+	  $(BIN)/cikan montecarlo --runs $(ROBUST_RUNS) --governor $(ROBUST_GOVERNORS) --workers 2 \
+	    --truth realistic --robust --set truth.scale=$$s --out runs/robustness/robust-s$$s || exit 1; \
+	done
+	$(BIN)/cikan report runs/robustness --robustness --out docs/results --notes docs/robustness_notes.md
 
 # The learned models at paper scale (`make -j2 models`, about 2.5 h on 2 cores, 1 h of it the labels): 1 M labels,
 # a TPE study of 30 pruned trials per family on the tau_prev-aware inputs (vnb-prev), then per

@@ -16,6 +16,7 @@ from typing import Protocol, runtime_checkable
 from numpy.typing import ArrayLike
 
 from .config import LEARNED_ALGORITHMS, Config
+from .errors import NoFeasibleShiftError
 from .tsg import ChiefAnchor, Predictor
 
 #: Decision paths, as published in /tsg/time_shift ``source`` and kept in mission records.
@@ -156,10 +157,12 @@ def warm_up(governor: Governor, x_d: ArrayLike, x_c: ArrayLike, t: float = 0.0) 
     collection took 65-85 ms and landed inside an update now and then; after the freeze only
     objects made later are scanned."""
     pred = governor.predictor
-    first = governor.initial(x_d, x_c, t)
+    try:
+        tau0 = min(governor.initial(x_d, x_c, t).tau_s, -pred.config.tsg.tolerance_s)
+    except NoFeasibleShiftError:  # robust Verify may refuse this state: the kernels compiled anyway
+        tau0 = -10.0
     governor.anchor.current = pred  # the warm-up's anchoring is not part of any mission
     t1 = t + pred.config.tsg.update_period_s
-    tau0 = min(first.tau_s, -pred.config.tsg.tolerance_s)
     # Every kernel entry point a decision may take (the update itself may take only one path).
     pred.verify(x_d, t1, tau0)
     pred.bisect(x_d, t1, tau0, 0.0, budget=1)

@@ -18,7 +18,8 @@ from typing import Any, Iterator
 import numpy as np
 
 from .config import Config, config_from_flat
-from .errors import CikanError
+from .errors import CikanError, NoFeasibleShiftError
+from .robust import UnstableLoopError
 from .governor import Governor, make_governor, warm_up
 from .mission import MissionResult, nominal_start, run_mission, sample_start
 from .parallel import ordered_map
@@ -88,16 +89,32 @@ def run_one(task: RunTask) -> dict[str, Any]:
     """Fly one Monte Carlo run (or reuse its stored result); return its metrics."""
     json_path, npz_path = run_paths(task.out_dir, task.governor, task.seed)
     flat = json.loads(task.config_json)
-    if json_path.exists() and npz_path.exists():
+    if json_path.exists():
         try:
             stored = json.loads(json_path.read_text())
-            if stored.get("config") == flat:
+            if stored.get("config") == flat and ("refused" in stored["metrics"] or npz_path.exists()):
                 return stored["metrics"]
         except (json.JSONDecodeError, KeyError):
             pass  # an unreadable result is flown again
-    gov = process_governor(task.config_json, task.governor)
-    x0 = sample_start(gov.predictor, task.seed)
-    return save_run(run_mission(gov, x0, task.seed), task.seed, json_path, npz_path)
+    try:
+        gov = process_governor(task.config_json, task.governor)
+        x0 = sample_start(gov.predictor, task.seed)
+        return save_run(run_mission(gov, x0, task.seed), task.seed, json_path, npz_path)
+    except (NoFeasibleShiftError, UnstableLoopError) as exc:
+        # Robust Verify refuses the start (no feasible shift) or the declared bounds (no tube):
+        # a result of the campaign, not a failure of it.
+        return save_refused(task, str(exc), json_path)
+
+
+def save_refused(task: RunTask, reason: str, json_path: Path) -> dict[str, Any]:
+    """Record a run the governor refused to fly (``refused``: the one-line reason)."""
+    metrics = {"governor": governor_label(task.governor), "seed": task.seed, "refused": reason,
+               "success": False}
+    json_path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = json_path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps({"metrics": metrics, "config": json.loads(task.config_json)}, indent=1))
+    tmp.replace(json_path)
+    return metrics
 
 
 def run_campaign(cfg: Config, governors: list[str], runs: int, seed: int, out_dir: str | Path,
@@ -120,7 +137,13 @@ def run_campaign(cfg: Config, governors: list[str], runs: int, seed: int, out_di
 
 
 def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
-    """Campaign figures of one governor (SPEC §9): success count, violations, dV, margins, times."""
+    """Campaign figures of one governor (SPEC §9): success count, violations, dV, margins, times,
+    over the runs it flew; ``refused``: runs it refused (no feasible start under robust Verify)."""
+    refused = sum(1 for r in runs if "refused" in r)
+    runs = [r for r in runs if "refused" not in r]
+    if not runs:
+        return {"runs": 0, "refused": refused, "successes": 0, "violations": 0}
+
     def col(key: str) -> np.ndarray:
         return np.array([r[key] for r in runs if r.get(key) is not None], dtype=float)
 
@@ -137,6 +160,7 @@ def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
         return float((v * n).sum() / n.sum()) if v.size == n.size and n.sum() else math.nan
     return {
         "runs": len(runs),
+        "refused": refused,
         "successes": int(sum(bool(r["success"]) for r in runs)),
         "violations": int(col("violations").sum()),
         "delta_v_kmps_mean": float(dv.mean()),
@@ -168,8 +192,12 @@ def markdown_summary(summaries: dict[str, dict[str, Any]]) -> str:
             "| update ms mean / max | active ms mean / max |")
     lines = [head, "|" + "---|" * 10]
     for g, s in summaries.items():
+        if not s["runs"]:
+            lines.append(f"| {g} | 0 ({s['refused']} refused) | 0 | 0 | - | - | - | - | - | - |")
+            continue
         lines.append(
-            f"| {g} | {s['runs']} | {s['successes']} | {s['violations']} | {s['delta_v_kmps_mean']:.4f} "
+            f"| {g} | {s['runs']}{f' ({r} refused)' if (r := s['refused']) else ''} | {s['successes']} "
+            f"| {s['violations']} | {s['delta_v_kmps_mean']:.4f} "
             f"| {s['delta_v_kmps_max']:.4f} | {s['min_h1_margin']:.2e} | {s['max_h3']:.2e} "
             f"| {s['update_ms_mean']:.3f} / {s['update_ms_max']:.2f} "
             f"| {s['active_update_ms_mean']:.3f} / {s['active_update_ms_max']:.2f} |")

@@ -14,6 +14,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--title", default=None, help="page title")
     p.add_argument("--notes", default=None, metavar="FILE",
                    help="a Markdown file inserted after the tables (e.g. what differs from the paper and why)")
+    p.add_argument("--robustness", action="store_true",
+                   help="DIR holds a robustness campaign (one `cikan montecarlo` output per truth "
+                        "scale and Verify, `make robustness`): write robustness.md and .png")
     p.add_argument("--config", default=None, metavar="PATH",
                    help="configuration of bags that do not carry their own (default: the shipped one)")
     p.set_defaults(func=run)
@@ -34,6 +37,11 @@ def run(args: argparse.Namespace) -> int:
             notes = Path(args.notes).read_text()
         except OSError as exc:
             raise CikanError(f"cannot read --notes file {args.notes}: {exc.strerror}") from None
-    page = write_report(args.source, args.out, cfg, args.title, notes)
+    if args.robustness:
+        from ..analysis.robustness import write_robustness
+
+        page = write_robustness(args.source, args.out, notes)
+    else:
+        page = write_report(args.source, args.out, cfg, args.title, notes)
     print(f"report: {page}")
     return 0

@@ -1,0 +1,172 @@
+"""The robustness campaign's table and figure (``make robustness``, ``cikan report DIR --robustness``).
+
+The campaign directory holds one ``cikan montecarlo`` output per configuration (any names):
+each run's JSON carries its configuration, from which the truth model, ``truth.scale`` and the
+Verify (``tsg.robust``) are read. Rows: governor x Verify x scale. The Delta-V reference is the
+conventional TSG with nominal Verify in the nominal world (the truth at scale 0, or the nominal
+truth) on the same starts: ratio = sum of Delta-V over the runs flown / sum of the reference's
+Delta-V over the same seeds.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from ..errors import CikanError
+
+
+@dataclass
+class Cell:
+    """The runs of one governor under one configuration."""
+
+    governor: str
+    robust: bool
+    scale: float
+    truth: str
+    dock_m: float
+    dock_mps: float
+    runs: dict[int, dict[str, Any]] = field(default_factory=dict)   # seed -> metrics
+
+    @property
+    def flown(self) -> list[dict[str, Any]]:
+        return [m for m in self.runs.values() if "refused" not in m]
+
+    def docked(self, m: dict[str, Any]) -> bool:
+        return (m.get("final_distance_m") is not None and m["final_distance_m"] < self.dock_m
+                and m["final_speed_mps"] < self.dock_mps)
+
+
+def load_cells(root: str | Path) -> list[Cell]:
+    """Every (governor, Verify, scale) cell of a campaign directory (``*/<governor>/seed_*.json``)."""
+    cells: dict[tuple[str, bool, float, str], Cell] = {}
+    root = Path(root)
+    for js in sorted(root.glob("*/*/seed_*.json")):
+        try:
+            stored = json.loads(js.read_text())
+            m, cfg = stored["metrics"], stored["config"]
+        except (OSError, json.JSONDecodeError, KeyError):
+            continue
+        robust = bool(cfg.get("tsg.robust", False))
+        scale = float(cfg.get("truth.scale", 0.0))
+        truth = str(cfg.get("truth.name", "nominal"))
+        if truth == "nominal":
+            scale = 0.0  # the nominal truth is scale 0 of every truth
+        key = (m["governor"], robust, scale, truth if scale > 0 else "nominal")
+        cell = cells.get(key)
+        if cell is None:
+            cell = cells[key] = Cell(m["governor"], robust, scale, key[3],
+                                     float(cfg["mission.dock_distance_km"]) * 1e3,
+                                     float(cfg["mission.dock_speed_kmps"]) * 1e3)
+        cell.runs[int(m["seed"])] = m
+    if not cells:
+        raise CikanError(f"no Monte Carlo runs under {root} (expected <config>/<governor>/seed_*.json)")
+    return sorted(cells.values(), key=lambda c: (c.robust, c.scale, c.governor != "conventional",
+                                                 c.governor))
+
+
+def reference(cells: list[Cell]) -> dict[int, float]:
+    """seed -> Delta-V (km/s) of the nominal conventional TSG (nominal Verify, nominal world)."""
+    for c in cells:
+        if c.governor == "conventional" and not c.robust and c.scale == 0.0:
+            return {s: m["delta_v_kmps"] for s, m in c.runs.items() if "refused" not in m}
+    return {}
+
+
+def cell_row(c: Cell, ref: dict[int, float]) -> dict[str, Any]:
+    """The table's figures of one cell."""
+    flown = c.flown
+    seeds = [s for s, m in c.runs.items() if "refused" not in m and s in ref]
+    dv_ratio = (sum(c.runs[s]["delta_v_kmps"] for s in seeds) / sum(ref[s] for s in seeds)
+                if seeds else math.nan)
+    tz = [m["t_tau_zero_s"] for m in flown if m.get("t_tau_zero_s") is not None]
+    return {
+        "governor": c.governor, "verify": "robust" if c.robust else "nominal", "scale": c.scale,
+        "runs": len(c.runs), "refused": len(c.runs) - len(flown),
+        "violation_steps": sum(int(m["violations"]) for m in flown),
+        "runs_violated": sum(1 for m in flown if m["violations"]),
+        "docked": sum(1 for m in flown if c.docked(m)),
+        "successes": sum(1 for m in flown if m["success"]),
+        "delta_v_kmps_mean": (sum(m["delta_v_kmps"] for m in flown) / len(flown)) if flown else math.nan,
+        "delta_v_ratio": dv_ratio,
+        "tau_zero_runs": len(tz),
+        "t_tau_zero_s_mean": sum(tz) / len(tz) if tz else math.nan,
+        "dock_test": f"{c.dock_m:g} m, {c.dock_mps:g} m/s",
+    }
+
+
+def _fmt(v: float, spec: str) -> str:
+    return "-" if not math.isfinite(v) else format(v, spec)
+
+
+def markdown_table(rows: list[dict[str, Any]]) -> str:
+    """One row per governor, Verify and scale."""
+    lines = ["| Verify | truth.scale | governor | runs | refused | violating steps (runs) | docked "
+             "| success | ΔV mean (km/s) | ΔV / nominal conventional | τ = 0 reached | t(τ = 0) mean (s) "
+             "| docking test |", "|" + "---|" * 13]
+    for r in rows:
+        lines.append(
+            f"| {r['verify']} | {r['scale']:g} | {r['governor']} | {r['runs']} | {r['refused']} "
+            f"| {r['violation_steps']} ({r['runs_violated']}) | {r['docked']} | {r['successes']} "
+            f"| {_fmt(r['delta_v_kmps_mean'], '.3f')} | {_fmt(r['delta_v_ratio'], '.3f')} "
+            f"| {r['tau_zero_runs']} | {_fmt(r['t_tau_zero_s_mean'], '.0f')} | {r['dock_test']} |")
+    return "\n".join(lines) + "\n"
+
+
+def figure(rows: list[dict[str, Any]], path: Path) -> None:
+    """Per Verify (columns): runs with a violation, runs docked and the Delta-V ratio against
+    truth.scale, one line per governor."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(3, 2, figsize=(10, 9), sharex=True, sharey="row")
+    governors = sorted({r["governor"] for r in rows}, key=lambda g: (g != "conventional", g))
+    for col, verify in enumerate(("nominal", "robust")):
+        for g in governors:
+            pts = sorted((r["scale"], r) for r in rows if r["verify"] == verify and r["governor"] == g)
+            if not pts:
+                continue
+            xs = [s for s, _ in pts]
+            axes[0, col].plot(xs, [r["runs_violated"] / r["runs"] for _, r in pts], "o-", label=g)
+            axes[1, col].plot(xs, [r["docked"] / r["runs"] for _, r in pts], "o-", label=g)
+            axes[2, col].plot(xs, [r["delta_v_ratio"] for _, r in pts], "o-", label=g)
+        axes[0, col].set_title(f"{verify} Verify")
+        axes[2, col].set_xlabel("truth.scale (realistic)")
+    axes[0, 0].set_ylabel("runs with a violation")
+    axes[1, 0].set_ylabel("runs docked (refused: not)")
+    axes[2, 0].set_ylabel("ΔV / nominal conventional")
+    axes[0, 1].legend(fontsize=8)
+    for ax in axes.ravel():
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def write_robustness(source: str | Path, out_dir: str | Path, notes: str | None = None) -> Path:
+    """robustness.md and robustness.png of a campaign directory; returns the page's path."""
+    cells = load_cells(source)
+    ref = reference(cells)
+    rows = [cell_row(c, ref) for c in cells]
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    figure(rows, out / "robustness.png")
+    page = out / "robustness.md"
+    text = ["# Robustness: nominal and robust Verify in the realistic world", "",
+            "Generated by `make robustness` (`cikan report runs/robustness --robustness --out "
+            "docs/results`); the models and the derivation are in "
+            "[../robustness.md](../robustness.md). Violations, docking and ΔV are judged on the "
+            "truth; ΔV / nominal conventional is the sum of ΔV over the runs flown divided by the "
+            "nominal conventional TSG's (nominal Verify, nominal world) on the same starts. "
+            "Refused: runs for which robust Verify found no feasible shift at the start, or whose "
+            "declared thruster errors exceed the controller's stability margin (no run flown).", "",
+            markdown_table(rows), "![robustness](robustness.png)", ""]
+    if notes:
+        text += [notes.strip(), ""]
+    page.write_text("\n".join(text))
+    return page
