@@ -116,26 +116,28 @@ def interpolate_gain_kernel(table: NDArray, nu: float, out: NDArray) -> None:
 
 
 @nb.njit(cache=True)
-def saturate_kernel(u: NDArray, u_max: float) -> None:
-    """In place: u <- min(|u|, u_max) u/|u|, keeping the direction (SPEC §3)."""
+def saturate_kernel(u: NDArray, u_max: float) -> float:
+    """In place: u <- min(|u|, u_max) u/|u|, keeping the direction (SPEC §3); returns |u| before."""
     n = math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
     if n > u_max:
         s = u_max / n
         for i in range(3):
             u[i] *= s
+    return n
 
 
 @nb.njit(cache=True)
 def ftre_control_kernel(table: NDArray, nu_v: float, x_d: NDArray, x_v: NDArray, u_max: float,
-                        k_buf: NDArray, out: NDArray) -> None:
-    """out = sat(-K(nu_v) (x_d - x_v)) in km/s^2; ``k_buf`` (3, 6) is scratch space."""
+                        k_buf: NDArray, out: NDArray) -> float:
+    """out = sat(-K(nu_v) (x_d - x_v)) in km/s^2; returns |K(nu_v) (x_d - x_v)| (unsaturated);
+    ``k_buf`` (3, 6) is scratch space."""
     interpolate_gain_kernel(table, nu_v, k_buf)
     for r in range(3):
         acc = 0.0
         for c in range(6):
             acc -= k_buf[r, c] * (x_d[c] - x_v[c])
         out[r] = acc
-    saturate_kernel(out, u_max)
+    return saturate_kernel(out, u_max)
 
 
 def interpolate_gain(table: NDArray, nu: float) -> NDArray:

@@ -39,7 +39,7 @@ from numpy.typing import ArrayLike, NDArray
 from .config import Config, prediction_gravity
 from .constraints import (C_APEX, C_COS_ALPHA, C_GAMMA1, C_GAMMA2, C_GAMMA3, C_UMAX, constraint_params, h1_line_of_sight_kernel, h2_thrust_kernel,
                           h3_approach_velocity_kernel)
-from .control import ftre_control_kernel, gain_table, interpolate_gain_kernel, saturate_kernel
+from .control import ftre_control_kernel, gain_table
 from .dynamics import j2_coefficient, rk4_kernel
 from .errors import NoFeasibleShiftError, StateError
 from .orbit import (N_PARAMS, P_E, P_M0, P_MU, P_N, KeplerOrbit, check_states,
@@ -260,7 +260,7 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
     u = np.empty(3)
     kb = np.empty((3, 6))
     ev = 0.0
-    rho = sig = big_r = big_s = a_n = 0.0  # tube radii, linear-phase bounds, |unsaturated u|
+    rho = sig = big_r = big_s = 0.0  # tube radii and their state parts
     linear = False
     for j in range(n):
         t = t_k + j * ts
@@ -306,17 +306,7 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
             if not robust or robust_terminal_ok(xv, xc, cp, rp, math.sqrt(dp2), math.sqrt(dv2),
                                                 rho, sig, ts):
                 return True
-        if robust:  # ftre_control_kernel's operations, keeping the unsaturated magnitude
-            interpolate_gain_kernel(table, nu_v, kb)
-            for r in range(3):
-                acc = 0.0
-                for c in range(6):
-                    acc -= kb[r, c] * (x[c] - xv[c])
-                u[r] = acc
-            a_n = math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
-            saturate_kernel(u, u_max)
-        else:
-            ftre_control_kernel(table, nu_v, x, xv, u_max, kb, u)
+        a_n = ftre_control_kernel(table, nu_v, x, xv, u_max, kb, u)  # |u| before saturation
         # h2 holds by saturation up to rounding; checked so a changed control law cannot skip it.
         if h2_thrust_kernel(u, cp) > 1e-12 * u_max:
             return False
