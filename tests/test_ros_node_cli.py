@@ -116,5 +116,5 @@ def test_lone_node_says_what_it_waits_for_and_gives_up(ros_env: int) -> None:
     log = out.stderr
     assert "waiting up to 2 s (graph.startup_timeout_s) for the readers of /deputy/odom: 0 of 2 readers " \
            "(expected governor, controller)" in log
-    assert "giving up after" in log and "/chief/odom: 0 of 1 readers (expected governor)" in log
+    assert "giving up after" in log and "/chief/odom: 0 of 2 readers (expected governor, controller)" in log
     assert "mission complete" not in log and "no command for" not in log   # no fake mission

@@ -26,7 +26,7 @@ def _key(topic: str, msg: object) -> tuple:
     if topic.endswith("odom"):
         p, v = msg.pose.pose.position, msg.twist.twist.linear
         return (stamp_ns(msg), p.x, p.y, p.z, v.x, v.y, v.z)
-    if topic == "/deputy/accel_cmd":
+    if topic in ("/deputy/accel_cmd", "/truth/deputy/accel"):
         a = msg.accel.linear
         return (stamp_ns(msg), a.x, a.y, a.z)
     if topic == "/tsg/time_shift":
