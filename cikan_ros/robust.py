@@ -38,8 +38,8 @@ from .orbit import KeplerOrbit, elements_to_state
 # Layout of the packed robustness parameters (``Predictor.rparams``).
 (R_ON, R_LAM, R_C0PP, R_C0PV, R_C0VP, R_C0VV, R_DPP, R_DPV, R_CPE, R_DVP, R_DVV, R_CVE, R_KP, R_KV,
  R_NPF, R_NPG, R_NVF, R_NVG, R_EPSU, R_DMAX, R_KG, R_SINA, R_ZETA, R_GRAD, R_GPP, R_GPV, R_GVP,
- R_GVV, R_NRATE) = range(29)
-N_RPARAMS = 29
+ R_GVV, R_NRATE, R_HPP, R_HPV, R_HVP, R_HVV) = range(33)
+N_RPARAMS = 33
 
 #: Powers of the closed-loop matrix scanned for the constants C (lam^200 < 1e-11 here).
 N_POWERS = 200
@@ -73,7 +73,7 @@ def tube_constants(orbit: KeplerOrbit, cfg: ControlConfig, bias: float = 0.0,
     table = gain_table(orbit, cfg)
     n_cells = table.shape[0] - 1
     stride = max(1, round(ANALYSIS_STEP_DEG / cfg.grid_deg))
-    keys = ("lam", "kp", "kv") + tuple(f"{c}{row}{col}" for c in ("c0", "g", "d")
+    keys = ("lam", "kp", "kv") + tuple(f"{c}{row}{col}" for c in ("c0", "g", "d", "h")
                                         for row in "pv" for col in "pv") + ("cpe", "cve")
     out = {k: 0.0 for k in keys}
     systems = []
@@ -109,7 +109,13 @@ def tube_constants(orbit: KeplerOrbit, cfg: ControlConfig, bias: float = 0.0,
         # DC response to a constant navigation error: sum_l Phi^l B M K = (I - Phi)^-1 B M K, and
         # what is left of it after m steps: D_m = sum_{l > m} Phi^l B M K = Phi^(m+1) (DC).
         dc = np.linalg.solve(np.eye(6) - phi, bmk)
+        # What of a constant navigation error the controller still sees once the loop has
+        # settled: x_truth + delta - x_pred = (I - G) delta (the deputy flies to the target
+        # displaced by delta, so a position error cancels, 1 - G_pp ~ 1e-4).
+        seen = np.eye(6) - dc
         for row, rmat in rows.items():
+            for col, cols in (("p", slice(0, 3)), ("v", slice(3, 6))):
+                worst(f"h{row}{col}", float(np.linalg.norm(rmat @ seen[:, cols], 2)))
             rp_ = rmat @ powers  # (N + 2, 3, 6)
             for col, cols in (("p", slice(0, 3)), ("v", slice(3, 6))):
                 worst(f"g{row}{col}", float(np.linalg.norm(rmat @ dc[:, cols], 2)))
@@ -148,7 +154,8 @@ def robust_params(cfg: Config, orbit: KeplerOrbit) -> NDArray:
     for name, idx in (("c0pp", R_C0PP), ("c0pv", R_C0PV), ("c0vp", R_C0VP), ("c0vv", R_C0VV),
                       ("dpp", R_DPP), ("dpv", R_DPV), ("cpe", R_CPE), ("dvp", R_DVP),
                       ("dvv", R_DVV), ("cve", R_CVE), ("kp", R_KP), ("kv", R_KV),
-                      ("gpp", R_GPP), ("gpv", R_GPV), ("gvp", R_GVP), ("gvv", R_GVV)):
+                      ("gpp", R_GPP), ("gpv", R_GPV), ("gvp", R_GVP), ("gvv", R_GVV),
+                      ("hpp", R_HPP), ("hpv", R_HPV), ("hvp", R_HVP), ("hvv", R_HVV)):
         rp[idx] = tc[name]
     rp[R_NRATE] = truth.nav_rate_per_s
     rp[R_NPF] = truth.bound("nav_pos_floor_km")

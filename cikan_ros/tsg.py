@@ -46,7 +46,7 @@ from .orbit import (N_PARAMS, P_E, P_M0, P_MU, P_N, KeplerOrbit, check_states,
                     eccentric_anomaly_kernel, osculating_params_kernel, state_from_anomaly_kernel,
                     state_kernel, state_warm_kernel)
 from .robust import (R_C0PP, R_C0PV, R_C0VP, R_C0VV, R_CPE, R_CVE, R_DPP, R_DPV, R_DVP, R_DVV,
-                     R_GPP, R_GPV, R_GVP, R_GVV, R_NRATE,
+                     R_GPP, R_GPV, R_GVP, R_GVV, R_HPP, R_HPV, R_HVP, R_HVV, R_NRATE,
                      R_DMAX, R_EPSU, R_GRAD, R_KG, R_KP, R_KV, R_LAM, R_NPF, R_NPG, R_NVF, R_NVG, R_ON,
                      R_SINA, R_ZETA, robust_params)
 from .units import ns_to_seconds
@@ -168,10 +168,9 @@ def tube_step(rp: NDArray, u_max: float, ts: float, rng: float, vrel: float, rho
     command of a state in the tube may differ from the prediction's.
     - Not every state of the tube saturates (a_n - m < u_max): the closed loop flown with the
       thruster map M, Phi_M = A - B M K (lam and the constants are the worst over M). The error is
-      the navigation error's DC response G (b_p, b_v) plus R, S that decay like lam^m:
-      R' = lam R + D (Delta_p, Delta_v) + C_e eta, entered from (rho, sigma) through the C0
-      constants (and D (b_p, b_v): the navigation error taken as a fresh step); and never more
-      than the open double integrator with |Delta u| <= 2 u_max allows.
+      the navigation error's DC response G (b_p, b_v) plus a transient R, S that decays like
+      lam^m: R' = lam R + D (Delta_p, Delta_v) + C_e eta, entered through the C0 constants; and
+      never more than the open double integrator with |Delta u| <= 2 u_max allows.
     - Every state saturates: the feedback acts only across the thrust
       direction, with the gain u_max / |a| <= 1 (the projection onto the thrust ball), and not
       along it; the error is then propagated as an open double integrator (that feedback taken
@@ -182,16 +181,20 @@ def tube_step(rp: NDArray, u_max: float, ts: float, rng: float, vrel: float, rho
     """
     rr = rng + rho
     bp, bv, dp, dv = nav_terms(rp, rr, vrel + sig, ts)
-    m = rp[R_KP] * (rho + bp) + rp[R_KV] * (sig + bv)
+    # The truth's command differs from the prediction's by K (e + delta): the transient R, S,
+    # what of the navigation error does not cancel against its own offset ((I - G) delta), and
+    # the error's last change.
+    m = rp[R_KP] * (big_r + rp[R_HPP] * bp + rp[R_HPV] * bv + dp) \
+        + rp[R_KV] * (big_s + rp[R_HVP] * bp + rp[R_HVV] * bv + dv)
     # The thruster error of the predicted command (the part proportional to the tube's own
     # command error is in the loop Phi_M = A - B M K of the tube constants).
     eta = rp[R_EPSU] * un + rp[R_DMAX] + rp[R_KG] * rr
     offset_p = rp[R_GPP] * bp + rp[R_GPV] * bv
     offset_v = rp[R_GVP] * bp + rp[R_GVV] * bv
     if a_n - m < u_max:
-        if not linear:  # R, S held the state part of the saturated phase
-            big_r, big_s = ((rp[R_C0PP] * big_r + rp[R_C0PV] * big_s) + (rp[R_DPP] * bp + rp[R_DPV] * bv),
-                            (rp[R_C0VP] * big_r + rp[R_C0VV] * big_s) + (rp[R_DVP] * bp + rp[R_DVV] * bv))
+        if not linear:  # R, S held the transient of the saturated phase: it now decays
+            big_r, big_s = (rp[R_C0PP] * big_r + rp[R_C0PV] * big_s,
+                            rp[R_C0VP] * big_r + rp[R_C0VV] * big_s)
         lam = rp[R_LAM]
         big_r = lam * big_r + rp[R_DPP] * dp + rp[R_DPV] * dv + rp[R_CPE] * eta
         big_s = lam * big_s + rp[R_DVP] * dp + rp[R_DVV] * dv + rp[R_CVE] * eta
@@ -272,9 +275,11 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
                 chief_row_kernel(orb, chief_t0 + j * ts, xc)
         if robust:
             rng = math.sqrt((x[0] - xc[0]) ** 2 + (x[1] - xc[1]) ** 2 + (x[2] - xc[2]) ** 2)
-            if j == 0:  # the measured state: off the truth by the navigation error
-                rho = big_r = rp[R_NPF] + rp[R_NPG] * rng
-                sig = big_s = rp[R_NVF] + rp[R_NVG] * rng
+            if j == 0:  # the measured state: off the truth by the navigation error, delta;
+                rho = rp[R_NPF] + rp[R_NPG] * rng  # its transient is -(I - G) delta
+                sig = rp[R_NVF] + rp[R_NVG] * rng
+                big_r = rp[R_HPP] * rho + rp[R_HPV] * sig
+                big_s = rp[R_HVP] * rho + rp[R_HVV] * sig
             if not robust_h1_ok(x, xc, cp, rp[R_SINA], rho):
                 return False
             if not robust_h3_ok(x, xc, cp, rho, sig):
