@@ -84,3 +84,14 @@ def test_bad_model_file_or_rule_is_one_line_and_exit_2(tmp_path, damage, match):
     assert out.returncode == 2, out.stderr
     assert match in out.stderr and len(out.stderr.strip().splitlines()) == 1, out.stderr
     assert "Traceback" not in out.stderr + out.stdout
+
+
+def test_negative_seed_is_one_line(tmp_path) -> None:
+    import subprocess
+    import sys
+
+    for cmd in (["mission", "--offline", "--seed", "-3"], ["montecarlo", "--seed", "-1", "--out", str(tmp_path)]):
+        out = subprocess.run([sys.executable, "-m", "cikan_ros.cli", *cmd], capture_output=True, text=True,
+                             timeout=120)
+        assert out.returncode == 2 and "seed must be an integer >= 0" in out.stderr, out.stderr
+        assert "Traceback" not in out.stderr

@@ -13,6 +13,17 @@ from ..config import Config
 from ..errors import ConfigError
 
 
+def seed_arg(text: str) -> int:
+    """argparse type of a seed: an integer >= 0 (numpy's generators take no negative seed)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"seed must be an integer >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"seed must be an integer >= 0, got {value}")
+    return value
+
+
 def add_config_args(parser: argparse.ArgumentParser) -> None:
     """``--config PATH`` and repeatable ``--set group.key=value`` (YAML value)."""
     parser.add_argument("--config", metavar="PATH", default=None,

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from . import add_config_args, config_from_args, dumps
+from . import add_config_args, config_from_args, dumps, seed_arg
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -20,7 +20,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="local worker processes (default: one per CPU; 1 runs in this process)")
     p.add_argument("--dask", metavar="ADDRESS", default=None,
                    help="run on the Dask cluster at this scheduler address (e.g. tcp://host:8786)")
-    p.add_argument("--seed", type=int, default=0, help="dataset seed (the labels depend on it only)")
+    p.add_argument("--seed", type=seed_arg, default=0, help="dataset seed (the labels depend on it only)")
     p.add_argument("--sigma-min", type=float, default=5.0, help="smallest start spread sigma [km]")
     p.add_argument("--sigma-max", type=float, default=15.0, help="largest start spread sigma [km]")
     p.add_argument("--val-fraction", type=float, default=0.05, help="fraction of missions for val")

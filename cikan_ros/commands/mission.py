@@ -6,7 +6,7 @@ import argparse
 import sys
 from typing import Any
 
-from . import add_config_args, config_from_args, dumps
+from . import add_config_args, config_from_args, dumps, seed_arg
 
 SUMMARY_KEYS = (
     ("success", "docked with zero violations", "{}"),
@@ -43,7 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "exec:CMD ARGS, and the summary adds an audit of its time shifts")
     p.add_argument("--offline", action="store_true",
                    help="run the closed loop in-process without ROS (default: the ROS node graph)")
-    p.add_argument("--seed", type=int, default=None,
+    p.add_argument("--seed", type=seed_arg, default=None,
                    help="draw the start from the Monte Carlo distribution with this seed "
                         "(default: the nominal start)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")

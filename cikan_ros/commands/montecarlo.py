@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-from . import add_config_args, config_from_args, dumps
+from . import add_config_args, config_from_args, dumps, seed_arg
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -18,7 +18,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="a governor name or model path (NAME@paper: under the paper's Algorithm 1), "
                         "a comma-separated list, or 'all' (conventional, the five families under "
                         "the keep rule and under the paper's rule)")
-    p.add_argument("--seed", type=int, default=1, help="seed of the first run (default 1)")
+    p.add_argument("--seed", type=seed_arg, default=1, help="seed of the first run (default 1)")
     p.add_argument("--workers", type=int, default=1, help="local worker processes")
     p.add_argument("--dask", metavar="ADDRESS", default=None, help="Dask scheduler, e.g. tcp://host:8786")
     p.add_argument("--out", required=True, metavar="DIR", help="directory for per-run results and summary")

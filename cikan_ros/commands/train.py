@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from ..learn.features import FEATURE_SETS
-from . import dumps
+from . import dumps, seed_arg
 
 FAMILY_HELP = "cikan (B-spline KAN), grbf, rswaf, relu (MLP), gelu (MLP)"
 
@@ -42,7 +42,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--batch", type=int, default=None)
     t.add_argument("--theta-c", type=float, default=None, help="weight of the ReLU^2 term")
     t.add_argument("--patience", type=int, default=8, help="early stopping patience (epochs)")
-    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--seed", type=seed_arg, default=0)
     t.add_argument("--max-minutes", type=float, default=0.0, help="wall-clock budget (0: none)")
     t.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     t.add_argument("--max-train", type=int, default=0, help="use the first N training labels (0: all)")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from ..learn.features import FEATURE_SETS
-from . import dumps
+from . import dumps, seed_arg
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -23,7 +23,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--max-train", type=int, default=40000, help="training labels per trial (0: all)")
     p.add_argument("--trial-minutes", type=float, default=2.0, help="wall budget per trial")
     p.add_argument("--timeout", type=float, default=None, help="stop starting trials after S seconds")
-    p.add_argument("--seed", type=int, default=None, help="sampler seed")
+    p.add_argument("--seed", type=seed_arg, default=None, help="sampler seed")
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     p.add_argument("--json", action="store_true", help="print the study summary as JSON")
     p.set_defaults(func=run)
