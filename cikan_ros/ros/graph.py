@@ -3,12 +3,15 @@ readiness, the executor and the Jazzy shutdown pattern.
 
 QoS, chosen on purpose:
 
-- Every topic of the graph is RELIABLE, VOLATILE, KEEP_LAST 1000 on both sides. Lockstep needs
+- Every topic of the graph is RELIABLE, VOLATILE, KEEP_LAST 4000 on both sides. Lockstep needs
   every state, shift and command (a lost one would stall a step until a deadline); a late joiner
   must not act on old states, so no durability. The depth is for the recorder, which is not
   part of the lockstep: reliable KEEP_LAST does not throttle a publisher, so a writer history of
   10 let a recorder starved of CPU (a torch governor on 2 cores) lose states; 1000 samples per
-  topic (about 1 MB) let it fall 1000 steps behind and catch up. KEEP_ALL was not chosen: it
+  topic let it fall 1000 steps behind and catch up, until the truth's three topics made nine for
+  it to drain (a fresh clone's run lost truth states once with a governor that answers at once);
+  4000 (about 3 MB per topic, more than the 1441 steps of a 4-h mission) lets it fall behind a
+  whole mission. KEEP_ALL was not chosen: it
   blocks publishers when a reader dies without being noticed, which would stall the lockstep.
 - ``/clock`` offered the same way: compatible with rclpy's own best-effort /clock subscription,
   and the recorder and replay keep every tick.
@@ -79,7 +82,7 @@ CONSUMERS: dict[str, tuple[str, ...]] = {
 #: /tsg/time_shift source when no decision was made at this step: the last verified shift holds.
 PATH_HOLD = "hold"
 
-QOS_STREAM = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+QOS_STREAM = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=4000,
                         reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
 QOS_RECORD = QOS_STREAM
 #: /tsg/governor: the last announcement reaches readers that join later (transient local, depth 1).
