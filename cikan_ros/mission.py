@@ -233,6 +233,8 @@ class MissionResult:
             "active_verify_calls_max": max((r.verify_calls for r in self.updates if r.active), default=0)
             if timed else None,
             "duration_s": float(self.t[-1] - self.t[0]),
+            "dock_distance_m": cfg.mission.dock_distance_km * 1e3,
+            "dock_speed_mps": cfg.mission.dock_speed_kmps * 1e3,
             "truth": cfg.truth.name,
             "truth_scale": cfg.truth.scale,
             "robust": cfg.tsg.robust,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from typing import Any
 
@@ -13,7 +14,7 @@ SUMMARY_KEYS = (
     ("violations", "control steps with a violation", "{}"),
     ("tau0_s", "first time shift tau_0 [s]", "{:.6f}"),
     ("t_tau_zero_s", "tau reached 0 at [s]", "{}"),
-    ("t_docked_s", "docked (<1 m, <1 mm/s) at [s]", "{}"),
+    ("t_docked_s", "docked (<{dock_distance_m:g} m, <{dock_speed_mps:g} m/s) at [s]", "{}"),
     ("final_distance_m", "final distance [m]", "{:.3e}"),
     ("final_speed_mps", "final relative speed [m/s]", "{:.3e}"),
     ("delta_v_kmps", "delta-V [km/s]", "{:.4f}"),
@@ -68,7 +69,8 @@ def print_summary(metrics: dict[str, Any], title: str) -> None:
         else:
             v = metrics.get(key)
             value = "-" if v is None else fmt.format(v)
-        table.add_row(escape(label), value)
+        table.add_row(escape(label.format(**{k: metrics.get(k, math.nan) for k in
+                                              ("dock_distance_m", "dock_speed_mps")})), value)
     if "bag" in metrics:
         table.add_row("bag", str(metrics["bag"]))
     console = Console()
