@@ -175,3 +175,45 @@ def robust_params(cfg: Config, orbit: KeplerOrbit) -> NDArray:
         rp[R_KG] = j2_gradient_bound(r_min, orbit.mu)
     rp.setflags(write=False)
     return rp
+
+
+def gain_margin(orbit: KeplerOrbit, cfg: ControlConfig, tol: float = 1e-4) -> float:
+    """The largest thrust magnitude error (fraction, no pointing error) the FTRE loop stays
+    stable under, by bisection on :func:`tube_constants`."""
+    lo, hi = 0.0, 0.5
+    while hi - lo > tol:
+        mid = 0.5 * (lo + hi)
+        try:
+            tube_constants(orbit, cfg, mid, 0.0)
+            lo = mid
+        except UnstableLoopError:
+            hi = mid
+    return lo
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m cikan_ros.robust [--truth NAME] [--set KEY=VALUE ...]``: the tube constants of
+    a configuration and the FTRE loop's gain margin (the figures docs/robustness.md quotes)."""
+    import argparse
+    import json
+
+    from .commands import add_config_args, config_from_args
+
+    parser = argparse.ArgumentParser(prog="python -m cikan_ros.robust", description=main.__doc__)
+    add_config_args(parser)
+    args = parser.parse_args(argv)
+    cfg = config_from_args(args)
+    orbit = KeplerOrbit.from_config(cfg.orbit)
+    truth = cfg.truth
+    out: dict[str, object] = {"gain_margin": gain_margin(orbit, cfg.control)}
+    try:
+        out.update(tube_constants(orbit, cfg.control, truth.bound("thrust_bias_max"),
+                                  math.radians(truth.bound("thrust_pointing_max_deg"))))
+    except UnstableLoopError as exc:
+        out["unstable"] = str(exc)
+    print(json.dumps(out, indent=1))
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())

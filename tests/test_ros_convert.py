@@ -120,7 +120,7 @@ def test_schemas_parse_with_rosbags_and_hashes_match_installed_json() -> None:
 
 def test_qos_profile_in_rosbag2_v9_form() -> None:
     d = qos_dict(QOS_STREAM)
-    assert (d["history"], d["depth"], d["reliability"], d["durability"]) == ("keep_last", 1000, "reliable",
+    assert (d["history"], d["depth"], d["reliability"], d["durability"]) == ("keep_last", 4000, "reliable",
                                                                             "volatile")
     assert d["deadline"] == d["lifespan"] == {"sec": 0, "nsec": 0}   # rclpy's "default" durations
     assert d["liveliness"] == "system_default" and d["avoid_ros_namespace_conventions"] is False
@@ -176,3 +176,15 @@ def test_parameters_declared_with_descriptions_and_validated(ros_env: int) -> No
         bad.destroy_node()
     finally:
         rclpy.try_shutdown(context=ctx)
+
+
+def test_odometry_carries_the_state_covariance_in_si() -> None:
+    """The navigation covariance (km^2, km^2/s^2) goes out as m^2 and m^2/s^2 in the position
+    block of pose.covariance and the linear block of twist.covariance, and comes back."""
+    cov = np.diag([1e-10, 2e-10, 3e-10, 1e-12, 2e-12, 3e-12])
+    cov[0, 1] = cov[1, 0] = 5e-11
+    msg = deserialize_message(serialize_message(cv.odom_msg(X, 0, "deputy", cov)), type(cv.odom_msg(X, 0, "d")))
+    pose = np.array(msg.pose.covariance).reshape(6, 6)
+    assert pose[0, 0] == pytest.approx(1e-4) and pose[0, 1] == pytest.approx(5e-5) and pose[3, 3] == 0.0
+    np.testing.assert_allclose(cv.covariance_from_odom(msg), cov, rtol=1e-12)
+    assert not np.any(np.array(cv.odom_msg(X, 0, "deputy").pose.covariance))  # none given: zeros
