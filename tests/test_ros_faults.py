@@ -113,7 +113,9 @@ def test_governor_killed_controller_holds_last_verified_shift(ros_env: int, tmp_
     for k in range(first, loop.n_steps):
         s = tl.stamp_ns(k)
         if s in holds:                                         # no shift in time: the last one holds
-            assert s not in published or s in stale, k
+            # (the killed governor's last shift may reach the recorder and not the controller:
+            # SIGKILL ends its reliable delivery midway; seen once in a fresh clone under load)
+            assert s not in published or s in stale or s == last_published, k
             assert k > first and holds[s] == tau_used[-1], k
             tau_used.append(holds[s])
         else:
