@@ -32,9 +32,9 @@ def constraint_params(cfg: ConstraintConfig, u_max: float) -> NDArray:
                      cfg.gamma1_km, cfg.gamma2_per_s, cfg.gamma3_kmps, u_max])
 
 
-@nb.njit(cache=True)
-def h1_line_of_sight_kernel(x_d: NDArray, x_c: NDArray, cp: NDArray) -> float:
-    """h1 (km^2/s) of deputy x_d and chief x_c (6,); NaN within the apex radius."""
+@nb.njit(cache=True, inline="always")
+def los_terms_kernel(x_d: NDArray, x_c: NDArray) -> tuple[float, float, float]:
+    """(v_c . p_rel, |p_rel|, |v_c|) of deputy x_d and chief x_c (6,): what h1 is made of."""
     dot = 0.0
     p2 = 0.0
     vc2 = 0.0
@@ -43,10 +43,16 @@ def h1_line_of_sight_kernel(x_d: NDArray, x_c: NDArray, cp: NDArray) -> float:
         dot += x_c[3 + i] * p
         p2 += p * p
         vc2 += x_c[3 + i] * x_c[3 + i]
-    pn = math.sqrt(p2)
+    return dot, math.sqrt(p2), math.sqrt(vc2)
+
+
+@nb.njit(cache=True)
+def h1_line_of_sight_kernel(x_d: NDArray, x_c: NDArray, cp: NDArray) -> float:
+    """h1 (km^2/s) of deputy x_d and chief x_c (6,); NaN within the apex radius."""
+    dot, pn, vn = los_terms_kernel(x_d, x_c)
     if pn <= cp[C_APEX]:
         return math.nan
-    return dot + cp[C_COS_ALPHA] * math.sqrt(vc2) * pn
+    return dot + cp[C_COS_ALPHA] * vn * pn
 
 
 @nb.njit(cache=True)

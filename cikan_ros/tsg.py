@@ -37,7 +37,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .config import Config, prediction_gravity
-from .constraints import (C_APEX, C_COS_ALPHA, C_GAMMA1, C_GAMMA2, C_GAMMA3, C_UMAX, constraint_params, h1_line_of_sight_kernel, h2_thrust_kernel,
+from .constraints import (C_APEX, C_COS_ALPHA, C_GAMMA1, C_GAMMA2, C_GAMMA3, C_UMAX, constraint_params,
+                          los_terms_kernel, h1_line_of_sight_kernel, h2_thrust_kernel,
                           h3_approach_velocity_kernel)
 from .control import ftre_control_kernel, gain_table
 from .dynamics import j2_coefficient, rk4_kernel
@@ -109,20 +110,11 @@ def robust_h1_ok(x: NDArray, xc: NDArray, cp: NDArray, sin_a: float, rho: float)
     """Every position within rho (km) of x lies in the LoS cone or inside the apex radius:
     the distance of p = x - x_c to the cone's surface, |p| sin(alpha - theta), is >= rho
     (theta: angle between p and -v_c); positions within apex - rho need no check."""
-    dot = 0.0
-    p2 = 0.0
-    vc2 = 0.0
-    for i in range(3):
-        p = x[i] - xc[i]
-        dot += xc[3 + i] * p
-        p2 += p * p
-        vc2 += xc[3 + i] * xc[3 + i]
-    pn = math.sqrt(p2)
+    dot, pn, vn = los_terms_kernel(x, xc)
     if pn <= cp[C_APEX] - rho:
         return True
     if pn == 0.0:
         return False
-    vn = math.sqrt(vc2)
     c = -dot / (vn * pn)          # cos(theta)
     s = math.sqrt(max(0.0, 1.0 - c * c))
     return pn * (sin_a * c - cp[C_COS_ALPHA] * s) >= rho
