@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+from typing import NoReturn
 
 from . import __version__
 from .errors import CikanError
@@ -29,8 +30,17 @@ COMMAND_MODULES = (
 )
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line naming the problem (``cikan mission: error:
+    argument --seed: ...``), exit code 2, as the project's own errors are; ``--help`` shows usage.
+    Subcommand parsers are made of the same class."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="cikan", description="Learned time-shift governors for spacecraft rendezvous (cikan_ros).")
     parser.add_argument("--version", action="version", version=f"cikan_ros {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")

@@ -8,6 +8,8 @@ import subprocess
 import sys
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 REQUIRED = {"success", "violations", "final_distance_m", "final_speed_mps", "delta_v_kmps",
             "min_h1_margin", "max_h3", "tau0_s", "t_tau_zero_s", "updates", "update_ms_mean",
@@ -95,3 +97,25 @@ def test_negative_seed_is_one_line(tmp_path) -> None:
                              timeout=120)
         assert out.returncode == 2 and "seed must be an integer >= 0" in out.stderr, out.stderr
         assert "Traceback" not in out.stderr
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(st.sampled_from(["mission", "montecarlo", "report", "bench", "--seed", "-3", "1e9", "nan",
+                                 "--runs", "--out", "--truth", "--set", "x=1", "--robust", "--offline",
+                                 "--governor", "--json", "--rate", "-1", "--missions", "abc", "", "--"]),
+                max_size=6))
+def test_parser_errors_are_one_line(argv: list[str]) -> None:
+    """Whatever the argument list, the parser either accepts it or exits with code 2 and one line
+    (never a traceback); --help and --version exit 0."""
+    import contextlib
+    import io
+
+    from cikan_ros.cli import build_parser
+
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        try:
+            build_parser().parse_args(argv)
+        except SystemExit as exc:
+            assert exc.code == 2, (argv, exc.code)
+            assert err.getvalue().count("\n") == 1 and "error:" in err.getvalue(), err.getvalue()
