@@ -237,6 +237,11 @@ class TruthConfig:
         return self.scale * float(getattr(self, name))
 
     @property
+    def max_thrust_factor(self) -> float:
+        """|applied thrust| / |commanded| at most: 1 + the declared bias bound (h2 on the truth)."""
+        return 1.0 + self.bound("thrust_bias_max")
+
+    @property
     def effective_gravity(self) -> str:
         """The gravity the truth flies: ``gravity``, but two-body at scale 0 (the nominal model)."""
         return self.gravity if self.scale > 0 else "two-body"

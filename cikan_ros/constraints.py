@@ -55,9 +55,9 @@ def h1_line_of_sight_kernel(x_d: NDArray, x_c: NDArray, cp: NDArray) -> float:
     return dot + cp[C_COS_ALPHA] * vn * pn
 
 
-@nb.njit(cache=True)
-def h3_approach_velocity_kernel(x_d: NDArray, x_c: NDArray, cp: NDArray) -> float:
-    """h3 (km/s) of deputy x_d and chief x_c (6,); NaN when |p_rel| > gamma1."""
+@nb.njit(cache=True, inline="always")
+def rel_norms_kernel(x_d: NDArray, x_c: NDArray) -> tuple[float, float]:
+    """(|p_rel|, |v_rel|) of deputy x_d and chief x_c (6,): what h3 is made of."""
     p2 = 0.0
     v2 = 0.0
     for i in range(3):
@@ -65,10 +65,16 @@ def h3_approach_velocity_kernel(x_d: NDArray, x_c: NDArray, cp: NDArray) -> floa
         v = x_d[3 + i] - x_c[3 + i]
         p2 += p * p
         v2 += v * v
-    pn = math.sqrt(p2)
+    return math.sqrt(p2), math.sqrt(v2)
+
+
+@nb.njit(cache=True)
+def h3_approach_velocity_kernel(x_d: NDArray, x_c: NDArray, cp: NDArray) -> float:
+    """h3 (km/s) of deputy x_d and chief x_c (6,); NaN when |p_rel| > gamma1."""
+    pn, vn = rel_norms_kernel(x_d, x_c)
     if pn > cp[C_GAMMA1]:
         return math.nan
-    return math.sqrt(v2) - cp[C_GAMMA2] * pn - cp[C_GAMMA3]
+    return vn - cp[C_GAMMA2] * pn - cp[C_GAMMA3]
 
 
 @nb.njit(cache=True)

@@ -99,11 +99,6 @@ class Truth:
         self.nav_pos = gauss_markov(rng, n, self.period, tc.nav_correlation_s, step)
         self.nav_vel = gauss_markov(rng, n, self.period, tc.nav_correlation_s, step)
 
-    @property
-    def max_thrust_factor(self) -> float:
-        """|applied| / |commanded| at most: 1 + the declared bias bound."""
-        return 1.0 + self.tc.bound("thrust_bias_max")
-
     def chief_state(self, k: int) -> NDArray:
         """The true chief at t_k (6,), km, km/s, ECI."""
         return self.chief[k]

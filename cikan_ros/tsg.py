@@ -38,7 +38,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .config import Config, prediction_gravity
 from .constraints import (C_APEX, C_COS_ALPHA, C_GAMMA1, C_GAMMA2, C_GAMMA3, C_UMAX, constraint_params,
-                          los_terms_kernel, h1_line_of_sight_kernel, h2_thrust_kernel,
+                          los_terms_kernel, rel_norms_kernel, h1_line_of_sight_kernel, h2_thrust_kernel,
                           h3_approach_velocity_kernel)
 from .control import ftre_control_kernel, gain_table
 from .dynamics import j2_coefficient, rk4_kernel
@@ -124,17 +124,11 @@ def robust_h1_ok(x: NDArray, xc: NDArray, cp: NDArray, sin_a: float, rho: float)
 def robust_h3_ok(x: NDArray, xc: NDArray, cp: NDArray, rho: float, sig: float) -> bool:
     """h3 holds for every state within rho (km) and sigma (km/s) of x (h3 is active wherever
     |p| <= gamma1 may hold: |p| - rho <= gamma1)."""
-    p2 = 0.0
-    v2 = 0.0
-    for i in range(3):
-        p = x[i] - xc[i]
-        v = x[3 + i] - xc[3 + i]
-        p2 += p * p
-        v2 += v * v
-    lo = max(0.0, math.sqrt(p2) - rho)
+    pn, vn = rel_norms_kernel(x, xc)
+    lo = max(0.0, pn - rho)
     if lo > cp[C_GAMMA1]:
         return True
-    return math.sqrt(v2) + sig - cp[C_GAMMA2] * lo - cp[C_GAMMA3] <= 0.0
+    return vn + sig - cp[C_GAMMA2] * lo - cp[C_GAMMA3] <= 0.0
 
 
 @nb.njit(cache=True)
