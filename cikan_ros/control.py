@@ -34,9 +34,15 @@ def zoh_discretise(a: NDArray, b: NDArray, dt: float) -> tuple[NDArray, NDArray]
 
 
 def dlqr_gain(a_d: NDArray, b_d: NDArray, q: NDArray, r: NDArray) -> tuple[NDArray, NDArray]:
-    """K = (B_d^T S B_d + R)^-1 B_d^T S A_d and S, the stabilising solution of the DARE."""
-    s = solve_discrete_are(a_d, b_d, q, r)
-    k = np.linalg.solve(b_d.T @ s @ b_d + r, b_d.T @ s @ a_d)
+    """K = (B_d^T S B_d + R)^-1 B_d^T S A_d and S, the stabilising solution of the DARE.
+
+    R (diagonal, > 0) is taken out by scaling the input, u = R^-1/2 w (B' = B_d R^-1/2, R' = I,
+    K = R^-1/2 K'): the same gain, but scipy's QZ reordering fails for R >~ 1e7 I in km units
+    without it (measured on the paper's orbit). For R = I the scaling is exact (bit for bit)."""
+    w = 1.0 / np.sqrt(np.diag(r))
+    b_w = b_d * w
+    s = solve_discrete_are(a_d, b_w, q, np.eye(len(w)))
+    k = np.linalg.solve(b_w.T @ s @ b_w + np.eye(len(w)), b_w.T @ s @ a_d) * w[:, None]
     return k, s
 
 
