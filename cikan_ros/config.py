@@ -80,6 +80,7 @@ class ControlConfig:
     period_s: float = 10.0
     q_diag: tuple[float, ...] = (10.0, 10.0, 10.0, 1.0, 1.0, 1.0)
     r_diag: tuple[float, ...] = (1.0, 1.0, 1.0)
+    robust_r_diag: tuple[float, ...] = (1e7, 1e7, 1e7)
     grid_deg: float = 0.5
     u_max_kmps2: float = 5e-4
 
@@ -87,11 +88,14 @@ class ControlConfig:
         _positive("control.period_s", self.period_s)
         object.__setattr__(self, "q_diag", tuple(float(q) for q in self.q_diag))
         object.__setattr__(self, "r_diag", tuple(float(r) for r in self.r_diag))
+        object.__setattr__(self, "robust_r_diag", tuple(float(r) for r in self.robust_r_diag))
         _check(len(self.q_diag) == 6 and all(math.isfinite(q) and q >= 0 for q in self.q_diag)
                and any(q > 0 for q in self.q_diag), "control.q_diag", self.q_diag,
                "must be 6 finite weights >= 0, not all zero")
         _check(len(self.r_diag) == 3 and all(math.isfinite(r) and r > 0 for r in self.r_diag),
                "control.r_diag", self.r_diag, "must be 3 finite weights > 0")
+        _check(len(self.robust_r_diag) == 3 and all(math.isfinite(r) and r > 0 for r in self.robust_r_diag),
+               "control.robust_r_diag", self.robust_r_diag, "must be 3 finite weights > 0")
         _positive("control.grid_deg", self.grid_deg)
         n = 360.0 / self.grid_deg
         _check(abs(n - round(n)) < 1e-9 and round(n) >= 4, "control.grid_deg", self.grid_deg,
@@ -263,6 +267,18 @@ def prediction_gravity(cfg: "Config") -> str:
     if cfg.tsg.prediction_gravity != "auto":
         return cfg.tsg.prediction_gravity
     return cfg.truth.effective_gravity if cfg.tsg.robust else "two-body"
+
+
+def control_config(cfg: "Config") -> ControlConfig:
+    """The controller the loop flies: ``control``, with the LQ control weight
+    ``control.robust_r_diag`` in place of ``control.r_diag`` under robust Verify. The paper's
+    weight (R = I) gives a loop with a 3 % gain margin and minute-long saturated bang-bang
+    approaches that no error tube can follow; docs/robustness.md, "The controller", says how
+    the robust weight was chosen. Set ``control.robust_r_diag`` equal to ``control.r_diag`` to
+    fly the paper's controller under robust Verify."""
+    if not cfg.tsg.robust or cfg.control.robust_r_diag == cfg.control.r_diag:
+        return cfg.control
+    return dataclasses.replace(cfg.control, r_diag=cfg.control.robust_r_diag)
 
 
 #: Update rules of learned governors: the default ("keep", SPEC §8 beyond the paper) and the

@@ -29,7 +29,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from .config import Config, ControlConfig, TruthConfig, prediction_gravity
+from .config import Config, ControlConfig, TruthConfig, control_config, prediction_gravity
 from .control import B_INPUT, gain_table, zoh_discretise
 from .dynamics import J2_EARTH, R_EARTH_KM, linearisation
 from .errors import ConfigError
@@ -92,8 +92,9 @@ def tube_constants(orbit: KeplerOrbit, cfg: ControlConfig, bias: float = 0.0,
     if not out["lam"] < 1.0 - 1e-6:
         raise UnstableLoopError(
             f"thruster errors of {bias:.1%} in magnitude and {math.degrees(pointing_rad):.2f} deg in "
-            f"pointing destabilise the FTRE loop (spectral radius {out['lam']:.4f} >= 1; its gain "
-            "margin at this control period is about 3 %): no error tube exists")
+            f"pointing destabilise the FTRE loop with control weight R = {cfg.r_diag[0]:g} I (spectral "
+            f"radius {out['lam']:.4f} >= 1): no error tube exists; a larger control.robust_r_diag "
+            "widens the loop's gain margin (python -m cikan_ros.robust prints it)")
     lam = out["lam"] = out["lam"] * (1.0 + 1e-6)
     rows = {"p": np.hstack([np.eye(3), np.zeros((3, 3))]), "v": np.hstack([np.zeros((3, 3)), np.eye(3)])}
 
@@ -148,7 +149,7 @@ def robust_params(cfg: Config, orbit: KeplerOrbit) -> NDArray:
     truth: TruthConfig = cfg.truth
     bias = truth.bound("thrust_bias_max")
     point = math.radians(truth.bound("thrust_pointing_max_deg"))
-    tc = tube_constants(orbit, cfg.control, bias, point)
+    tc = tube_constants(orbit, control_config(cfg), bias, point)
     rp[R_ON] = 1.0
     rp[R_LAM] = tc["lam"]
     for name, idx in (("c0pp", R_C0PP), ("c0pv", R_C0PV), ("c0vp", R_C0VP), ("c0vv", R_C0VV),
@@ -180,7 +181,7 @@ def robust_params(cfg: Config, orbit: KeplerOrbit) -> NDArray:
 def gain_margin(orbit: KeplerOrbit, cfg: ControlConfig, tol: float = 1e-4) -> float:
     """The largest thrust magnitude error (fraction, no pointing error) the FTRE loop stays
     stable under, by bisection on :func:`tube_constants`."""
-    lo, hi = 0.0, 0.5
+    lo, hi = 0.0, 8.0
     while hi - lo > tol:
         mid = 0.5 * (lo + hi)
         try:
@@ -205,9 +206,10 @@ def main(argv: list[str] | None = None) -> int:
     cfg = config_from_args(args)
     orbit = KeplerOrbit.from_config(cfg.orbit)
     truth = cfg.truth
-    out: dict[str, object] = {"gain_margin": gain_margin(orbit, cfg.control)}
+    control = control_config(cfg)
+    out: dict[str, object] = {"r_diag": list(control.r_diag), "gain_margin": gain_margin(orbit, control)}
     try:
-        out.update(tube_constants(orbit, cfg.control, truth.bound("thrust_bias_max"),
+        out.update(tube_constants(orbit, control, truth.bound("thrust_bias_max"),
                                   math.radians(truth.bound("thrust_pointing_max_deg"))))
     except UnstableLoopError as exc:
         out["unstable"] = str(exc)

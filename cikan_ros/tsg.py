@@ -28,7 +28,6 @@ from the model by more than ``tsg.chief_anchor_tolerance_km``.
 from __future__ import annotations
 
 import math
-import dataclasses
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -36,7 +35,7 @@ import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .config import Config, prediction_gravity
+from .config import Config, control_config, prediction_gravity
 from .constraints import (C_APEX, C_COS_ALPHA, C_GAMMA1, C_GAMMA2, C_GAMMA3, C_UMAX, constraint_params,
                           los_terms_kernel, rel_norms_kernel, h1_line_of_sight_kernel, h2_thrust_kernel,
                           h3_approach_velocity_kernel)
@@ -499,17 +498,17 @@ class Predictor:
         tp = np.array([cfg.tsg.sample_period_s, n_samples, cfg.tsg.rk4_substeps,
                        cfg.tsg.terminal_pos_km, cfg.tsg.terminal_vel_kmps,
                        j2_coefficient(prediction_gravity(cfg))], dtype=float)
-        return cls(cfg, orbit, gain_table(orbit, cfg.control),
+        return cls(cfg, orbit, gain_table(orbit, control_config(cfg)),
                    constraint_params(cfg.constraints, cfg.control.u_max_kmps2), tp,
                    robust_params(cfg, orbit))
 
     def nominal(self) -> "Predictor":
-        """This model with nominal Verify (robustness off): what decides which starts a
-        campaign flies, so nominal and robust Verify fly the same starts."""
+        """This model with nominal Verify (robustness off, and so the nominal controller and
+        prediction model), for the same chief orbit: what decides which starts a campaign
+        flies, so nominal and robust Verify fly the same starts."""
         if not self.rparams[R_ON]:
             return self
-        return dataclasses.replace(self, rparams=robust_params(
-            self.config.replace(**{"tsg.robust": False}), self.orbit))
+        return Predictor.from_config(self.config.replace(**{"tsg.robust": False})).with_orbit(self.orbit)
 
     def with_orbit(self, orbit: KeplerOrbit) -> "Predictor":
         """This model with another chief orbit (a re-anchored chief): same gains, constraints,
@@ -653,10 +652,13 @@ class Predictor:
                                                   self.tparams, self.rparams, x, t, to_ns(cfg.initial_window_s),
                                                   to_ns(cfg.initial_grid_s), self.tol_ns, c.rows, c.t0)
         if not found:
+            truth = self.config.truth
+            under = (f" under robust Verify with the bounds of truth {truth.name!r} x {truth.scale:g}"
+                     if self.rparams[R_ON] else "")
             raise NoFeasibleShiftError(
                 f"no feasible time shift in [-{cfg.initial_window_s:g}, 0] s for this initial "
-                f"condition (deputy at {np.array2string(x[:3], precision=3)} km, t = {t:g} s): "
-                "the start is rejected")
+                f"condition (deputy at {np.array2string(x[:3], precision=3)} km, t = {t:g} s)"
+                f"{under}: the start is rejected")
         return ns_to_seconds(tau), int(calls)
 
 

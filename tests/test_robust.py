@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cikan_ros.config import load_config, truth_overrides
+from cikan_ros.config import control_config, load_config, truth_overrides
 from cikan_ros.constraints import constraint_params, h1_line_of_sight_kernel
 from cikan_ros.control import B_INPUT, zoh_discretise
 from cikan_ros.dynamics import J2_EARTH, R_EARTH_KM, j2_acceleration, linearisation
@@ -125,7 +125,9 @@ def test_j2_gradient_bound(r, lat, lon):
 
 
 def test_robust_verify_with_zero_bounds_is_nominal_verify():
-    cfg = load_config(**{**truth_overrides("realistic"), "truth.scale": 0.0, "tsg.robust": True})
+    # the same controller for both (robust Verify flies control.robust_r_diag otherwise)
+    cfg = load_config(**{**truth_overrides("realistic"), "truth.scale": 0.0, "tsg.robust": True,
+                         "control.robust_r_diag": [1.0, 1.0, 1.0]})
     robust = Predictor.from_config(cfg)
     nominal = Predictor.from_config(load_config())
     for seed in (1, 2):
@@ -148,7 +150,9 @@ def test_the_truth_bites_and_robust_verify_keeps_the_constraints():
 
 
 def test_cli_refuses_bounds_beyond_the_loop_and_bad_bounds():
-    for extra in (["--set", "truth.scale=2"], ["--set", "truth.nav_pos_floor_km=-1"]):
+    # scale 2 (4 %, 2 deg) is beyond the paper's controller's 3 % gain margin, not the robust one's
+    for extra in (["--set", "truth.scale=2", "--set", "control.robust_r_diag=[1.0, 1.0, 1.0]"],
+                  ["--set", "truth.nav_pos_floor_km=-1"]):
         out = subprocess.run([sys.executable, "-m", "cikan_ros.cli", "mission", "--offline",
                               "--truth", "realistic", "--robust", *extra],
                              capture_output=True, text=True, timeout=120)
@@ -168,7 +172,21 @@ def test_zeta_interval_verifies_both_ends():
 
 
 def test_a_start_robust_verify_rejects_is_one_line():
-    out = subprocess.run([sys.executable, "-m", "cikan_ros.cli", "mission", "--offline", "--seed", "11",
-                          "--truth", "realistic", "--robust"], capture_output=True, text=True, timeout=300)
+    # a navigation error of 20 % of the range: the ball around the start (100 km out, 34 km
+    # inside the cone's surface) and its tube leave no feasible shift
+    out = subprocess.run([sys.executable, "-m", "cikan_ros.cli", "mission", "--offline", "--truth",
+                          "realistic", "--robust", "--set", "truth.nav_pos_range_fraction=0.2"],
+                         capture_output=True, text=True, timeout=300)
     assert out.returncode == 2 and "no feasible time shift" in out.stderr
+    assert "under robust Verify with the bounds of truth 'realistic' x 1" in out.stderr
     assert out.stderr.count("\n") == 1
+
+
+def test_the_robust_weight_keeps_a_tube_at_twice_the_realistic_bounds():
+    """control.robust_r_diag: the loop flown with 4 % and 2 deg thruster errors (realistic at
+    scale 2) stays stable, where the paper's R = I does not (its gain margin is 3 %)."""
+    robust = control_config(load_config(**{"tsg.robust": True}))
+    lam = tube_constants(ORBIT, robust, 0.04, math.radians(2.0))["lam"]
+    assert lam < 0.9
+    with pytest.raises(UnstableLoopError):
+        tube_constants(ORBIT, CFG.control, 0.04, math.radians(2.0))
