@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 EXTRAS := ros,learn,report,dev
 
-.PHONY: install run test bench montecarlo results robustness models models-prev clean
+.PHONY: install run test bench montecarlo results robustness controller-sweep models models-prev clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -33,19 +33,35 @@ results: $(STAMP)
 		--title "Results: the paper's Table 2 and Figures 3-4 reproduced, with the keep rule beside Algorithm 1"
 
 # The robustness campaign (docs/robustness.md): the conventional TSG and the five families under
-# the keep rule, nominal and robust Verify, the realistic truth at scales 0, 0.5, 1 and 2, on the
-# Table 2 starts (seeds 1-100); then its table and figure (docs/results/robustness.md). Resumes.
+# the keep rule, nominal Verify (the paper's controller) and robust Verify (its controller,
+# control.robust_r_diag), the realistic truth at scales 0, 0.5, 1 and 2, on the Table 2 starts
+# (seeds 1-100); beside them at scale 1, robust Verify flying the paper's controller and nominal
+# Verify flying the robust one; then the table and figure (docs/results/robustness.md). Resumes.
 ROBUST_GOVERNORS := conventional,cikan,grbf,rswaf,relu,gelu
 ROBUST_SCALES    := 0 0.5 1 2
 ROBUST_RUNS      ?= 100
+ROBUST_MC         = $(BIN)/cikan montecarlo --runs $(ROBUST_RUNS) --governor $(ROBUST_GOVERNORS) --workers 2 --truth realistic
 robustness: $(STAMP)
 	for s in $(ROBUST_SCALES); do \
-	  $(BIN)/cikan montecarlo --runs $(ROBUST_RUNS) --governor $(ROBUST_GOVERNORS) --workers 2 \
-	    --truth realistic --set truth.scale=$$s --out runs/robustness/nominal-s$$s || exit 1; \
-	  $(BIN)/cikan montecarlo --runs $(ROBUST_RUNS) --governor $(ROBUST_GOVERNORS) --workers 2 \
-	    --truth realistic --robust --set truth.scale=$$s --out runs/robustness/robust-s$$s || exit 1; \
+	  $(ROBUST_MC) --set truth.scale=$$s --out runs/robustness/nominal-s$$s || exit 1; \
+	  $(ROBUST_MC) --robust --set truth.scale=$$s --out runs/robustness/robust-s$$s || exit 1; \
 	done
+	$(ROBUST_MC) --robust --set "control.robust_r_diag=[1.0, 1.0, 1.0]" --out runs/robustness/robust-paper-controller-s1
+	$(ROBUST_MC) --set "control.r_diag=[1.0e+7, 1.0e+7, 1.0e+7]" --out runs/robustness/nominal-robust-controller-s1
 	$(BIN)/cikan report runs/robustness --robustness --out docs/results --notes docs/robustness_notes.md
+
+# How the robust controller's weight was chosen (docs/robustness.md, "The controller"): the
+# conventional TSG under robust Verify, realistic truth, Table 2 starts, for LQ control weights
+# R = 1 (the paper's) to 1e8; the nominal reference beside it. docs/results/controller_sweep.md.
+SWEEP_R := 1.0 1.0e+4 1.0e+5 1.0e+6 1.0e+7 1.0e+8
+controller-sweep: $(STAMP)
+	$(BIN)/cikan montecarlo --runs $(ROBUST_RUNS) --governor conventional --workers 2 --out runs/controller-sweep/nominal
+	for r in $(SWEEP_R); do \
+	  $(BIN)/cikan montecarlo --runs $(ROBUST_RUNS) --governor conventional --workers 2 --truth realistic \
+	    --robust --set "control.robust_r_diag=[$$r, $$r, $$r]" --out runs/controller-sweep/robust-r$$r || exit 1; \
+	done
+	$(BIN)/cikan report runs/controller-sweep --robustness --out docs/results --name controller_sweep \
+		--title "Choosing the robust controller's weight: robust Verify, realistic truth, R = 1 to 1e8"
 
 # The learned models at paper scale (`make -j2 models`, about 2.5 h on 2 cores, 1 h of it the labels): 1 M labels,
 # a TPE study of 30 pruned trials per family on the tau_prev-aware inputs (vnb-prev), then per

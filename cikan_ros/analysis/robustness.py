@@ -1,8 +1,10 @@
 """The robustness campaign's table and figure (``make robustness``, ``cikan report DIR --robustness``).
 
 The campaign directory holds one ``cikan montecarlo`` output per configuration (any names):
-each run's JSON carries its configuration, from which the truth model, ``truth.scale`` and the
-Verify (``tsg.robust``) are read. Rows: governor x Verify x scale. The Delta-V reference is the
+each run's JSON carries its configuration, from which the truth model, ``truth.scale``, the
+Verify (``tsg.robust``) and the controller's LQ control weight R the loop flew
+(:func:`cikan_ros.config.control_config`) are read. Rows: governor x Verify x R x scale. The
+Delta-V reference is the
 conventional TSG with nominal Verify in the nominal world (the truth at scale 0, or the nominal
 truth) on the same starts: ratio = sum of Delta-V over the runs flown / sum of the reference's
 Delta-V over the same seeds.
@@ -25,6 +27,7 @@ class Cell:
 
     governor: str
     robust: bool
+    r_weight: float   # the LQ control weight R (x I) the controller flew
     scale: float
     truth: str
     dock_m: float
@@ -40,9 +43,18 @@ class Cell:
                 and m["final_speed_mps"] < self.dock_mps)
 
 
+def flown_r_weight(cfg: dict[str, Any]) -> float:
+    """The controller's R (first diagonal entry) a run's flat configuration flew: as
+    :func:`cikan_ros.config.control_config` picks it (runs stored before control.robust_r_diag
+    existed flew control.r_diag)."""
+    key = "control.robust_r_diag" if cfg.get("tsg.robust") and "control.robust_r_diag" in cfg \
+        else "control.r_diag"
+    return float(cfg.get(key, [1.0])[0])
+
+
 def load_cells(root: str | Path) -> list[Cell]:
-    """Every (governor, Verify, scale) cell of a campaign directory (``*/<governor>/seed_*.json``)."""
-    cells: dict[tuple[str, bool, float, str], Cell] = {}
+    """Every (governor, Verify, R, scale) cell of a campaign directory (``*/<governor>/seed_*.json``)."""
+    cells: dict[tuple[str, bool, float, float, str], Cell] = {}
     root = Path(root)
     for js in sorted(root.glob("*/*/seed_*.json")):
         try:
@@ -55,23 +67,25 @@ def load_cells(root: str | Path) -> list[Cell]:
         truth = str(cfg.get("truth.name", "nominal"))
         if truth == "nominal":
             scale = 0.0  # the nominal truth is scale 0 of every truth
-        key = (m["governor"], robust, scale, truth if scale > 0 else "nominal")
+        r_weight = flown_r_weight(cfg)
+        key = (m["governor"], robust, r_weight, scale, truth if scale > 0 else "nominal")
         cell = cells.get(key)
         if cell is None:
-            cell = cells[key] = Cell(m["governor"], robust, scale, key[3],
+            cell = cells[key] = Cell(m["governor"], robust, r_weight, scale, key[4],
                                      float(cfg["mission.dock_distance_km"]) * 1e3,
                                      float(cfg["mission.dock_speed_kmps"]) * 1e3)
         cell.runs[int(m["seed"])] = m
     if not cells:
         raise CikanError(f"no Monte Carlo runs under {root} (expected <config>/<governor>/seed_*.json)")
-    return sorted(cells.values(), key=lambda c: (c.robust, c.scale, c.governor != "conventional",
-                                                 c.governor))
+    return sorted(cells.values(), key=lambda c: (c.robust, c.r_weight, c.scale,
+                                                 c.governor != "conventional", c.governor))
 
 
 def reference(cells: list[Cell]) -> dict[int, float]:
-    """seed -> Delta-V (km/s) of the nominal conventional TSG (nominal Verify, nominal world)."""
+    """seed -> Delta-V (km/s) of the nominal conventional TSG (nominal Verify, the paper's
+    controller R = I, nominal world)."""
     for c in cells:
-        if c.governor == "conventional" and not c.robust and c.scale == 0.0:
+        if c.governor == "conventional" and not c.robust and c.scale == 0.0 and c.r_weight == 1.0:
             return {s: m["delta_v_kmps"] for s, m in c.runs.items() if "refused" not in m}
     return {}
 
@@ -84,7 +98,8 @@ def cell_row(c: Cell, ref: dict[int, float]) -> dict[str, Any]:
                 if seeds else math.nan)
     tz = [m["t_tau_zero_s"] for m in flown if m.get("t_tau_zero_s") is not None]
     return {
-        "governor": c.governor, "verify": "robust" if c.robust else "nominal", "scale": c.scale,
+        "governor": c.governor, "verify": "robust" if c.robust else "nominal", "r_weight": c.r_weight,
+        "scale": c.scale,
         "runs": len(c.runs), "refused": len(c.runs) - len(flown),
         "violation_steps": sum(int(m["violations"]) for m in flown),
         "runs_violated": sum(1 for m in flown if m["violations"]),
@@ -103,13 +118,14 @@ def _fmt(v: float, spec: str) -> str:
 
 
 def markdown_table(rows: list[dict[str, Any]]) -> str:
-    """One row per governor, Verify and scale."""
-    lines = ["| Verify | truth.scale | governor | runs | refused | violating steps (runs) | docked "
-             "| success | ΔV mean (km/s) | ΔV / nominal conventional | τ = 0 reached | t(τ = 0) mean (s) "
-             "| docking test |", "|" + "---|" * 13]
+    """One row per governor, Verify, controller weight and scale."""
+    lines = ["| Verify | controller R | truth.scale | governor | runs | refused | violating steps (runs) "
+             "| docked | success | ΔV mean (km/s) | ΔV / nominal conventional | τ = 0 reached "
+             "| t(τ = 0) mean (s) | docking test |", "|" + "---|" * 14]
     for r in rows:
         lines.append(
-            f"| {r['verify']} | {r['scale']:g} | {r['governor']} | {r['runs']} | {r['refused']} "
+            f"| {r['verify']} | {r['r_weight']:g} | {r['scale']:g} | {r['governor']} | {r['runs']} "
+            f"| {r['refused']} "
             f"| {r['violation_steps']} ({r['runs_violated']}) | {r['docked']} | {r['successes']} "
             f"| {_fmt(r['delta_v_kmps_mean'], '.3f')} | {_fmt(r['delta_v_ratio'], '.3f')} "
             f"| {r['tau_zero_runs']} | {_fmt(r['t_tau_zero_s_mean'], '.0f')} | {r['dock_test']} |")
@@ -117,30 +133,36 @@ def markdown_table(rows: list[dict[str, Any]]) -> str:
 
 
 def figure(rows: list[dict[str, Any]], path: Path) -> None:
-    """Per Verify (columns): runs with a violation, runs docked and the Delta-V ratio against
-    truth.scale, one line per governor."""
+    """Per Verify and controller weight flown at more than one scale (columns): runs with a
+    violation, runs docked and the Delta-V ratio against truth.scale, one line per governor."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(3, 2, figsize=(10, 9), sharex=True, sharey="row")
+    combos = sorted({(r["verify"], r["r_weight"]) for r in rows},
+                    key=lambda vr: (vr[0] == "robust", vr[1]))
+    combos = [vr for vr in combos
+              if len({r["scale"] for r in rows if (r["verify"], r["r_weight"]) == vr}) > 1] or combos
+    fig, axes = plt.subplots(3, len(combos), figsize=(5 * len(combos), 9), sharex=True,
+                             sharey="row", squeeze=False)
     governors = sorted({r["governor"] for r in rows}, key=lambda g: (g != "conventional", g))
-    for col, verify in enumerate(("nominal", "robust")):
+    for col, (verify, r_weight) in enumerate(combos):
         for g in governors:
-            pts = sorted((r["scale"], r) for r in rows if r["verify"] == verify and r["governor"] == g)
+            pts = sorted((r["scale"], r) for r in rows if r["verify"] == verify
+                         and r["r_weight"] == r_weight and r["governor"] == g)
             if not pts:
                 continue
             xs = [s for s, _ in pts]
             axes[0, col].plot(xs, [r["runs_violated"] / r["runs"] for _, r in pts], "o-", label=g)
             axes[1, col].plot(xs, [r["docked"] / r["runs"] for _, r in pts], "o-", label=g)
             axes[2, col].plot(xs, [r["delta_v_ratio"] for _, r in pts], "o-", label=g)
-        axes[0, col].set_title(f"{verify} Verify")
+        axes[0, col].set_title(f"{verify} Verify, controller R = {r_weight:g}")
         axes[2, col].set_xlabel("truth.scale (realistic)")
     axes[0, 0].set_ylabel("runs with a violation")
     axes[1, 0].set_ylabel("runs docked (refused: not)")
     axes[2, 0].set_ylabel("ΔV / nominal conventional")
-    axes[0, 1].legend(fontsize=8)
+    axes[0, -1].legend(fontsize=8)
     for ax in axes.ravel():
         ax.grid(alpha=0.3)
     fig.tight_layout()
@@ -148,24 +170,29 @@ def figure(rows: list[dict[str, Any]], path: Path) -> None:
     plt.close(fig)
 
 
-def write_robustness(source: str | Path, out_dir: str | Path, notes: str | None = None) -> Path:
-    """robustness.md and robustness.png of a campaign directory; returns the page's path."""
+def write_robustness(source: str | Path, out_dir: str | Path, notes: str | None = None,
+                     title: str | None = None, name: str = "robustness") -> Path:
+    """<name>.md and <name>.png of a campaign directory; returns the page's path."""
     cells = load_cells(source)
     ref = reference(cells)
     rows = [cell_row(c, ref) for c in cells]
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    figure(rows, out / "robustness.png")
-    page = out / "robustness.md"
-    text = ["# Robustness: nominal and robust Verify in the realistic world", "",
-            "Generated by `make robustness` (`cikan report runs/robustness --robustness --out "
-            "docs/results`); the models and the derivation are in "
+    figure(rows, out / f"{name}.png")
+    page = out / f"{name}.md"
+    text = [f"# {title or 'Robustness: nominal and robust Verify in the realistic world'}", "",
+            f"Generated by `cikan report {source} --robustness --out {out_dir}"
+            f"{'' if name == 'robustness' else ' --name ' + name}` from the campaign "
+            "its make target flies (`make robustness`, `make controller-sweep`); the models and "
+            "the derivation are in "
             "[../robustness.md](../robustness.md). Violations, docking and ΔV are judged on the "
             "truth; ΔV / nominal conventional is the sum of ΔV over the runs flown divided by the "
-            "nominal conventional TSG's (nominal Verify, nominal world) on the same starts. "
+            "nominal conventional TSG's (nominal Verify, the paper's controller, nominal world) on "
+            "the same starts. Controller R: the FTRE controller's LQ control weight the loop flew "
+            "(R = 1: the paper's; robust Verify flies `control.robust_r_diag`). "
             "Refused: runs for which robust Verify found no feasible shift at the start, or whose "
             "declared thruster errors exceed the controller's stability margin (no run flown).", "",
-            markdown_table(rows), "![robustness](robustness.png)", ""]
+            markdown_table(rows), f"![{name}]({name}.png)", ""]
     if notes:
         text += [notes.strip(), ""]
     page.write_text("\n".join(text))

@@ -17,6 +17,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--robustness", action="store_true",
                    help="DIR holds a robustness campaign (one `cikan montecarlo` output per truth "
                         "scale and Verify, `make robustness`): write robustness.md and .png")
+    p.add_argument("--name", default="robustness", metavar="NAME",
+                   help="with --robustness: the page's and figure's file name (NAME.md, NAME.png)")
     p.add_argument("--config", default=None, metavar="PATH",
                    help="configuration of bags that do not carry their own (default: the shipped one)")
     p.set_defaults(func=run)
@@ -39,8 +41,12 @@ def run(args: argparse.Namespace) -> int:
             raise CikanError(f"cannot read --notes file {args.notes}: {exc.strerror}") from None
     if args.robustness:
         from ..analysis.robustness import write_robustness
+        from ..errors import CikanError
 
-        page = write_robustness(args.source, args.out, notes)
+        if not args.name or "/" in args.name or args.name.startswith("."):
+            raise CikanError(f"--name must be a plain file name, got {args.name!r}")
+
+        page = write_robustness(args.source, args.out, notes, args.title, args.name)
     else:
         page = write_report(args.source, args.out, cfg, args.title, notes)
     print(f"report: {page}")
