@@ -18,7 +18,9 @@ C_XY = max_m |X Phi^m Y|_2 / lam^m the position and velocity errors obey the sca
 from rho_0 = C0_pp b_p + C0_pv b_v (sigma_0 likewise): the tube radii that robust Verify carries
 along its rollout (:func:`cikan_ros.tsg.rollout_kernel`). Here "p" rows are the position block,
 "v" the velocity block; the forcing columns are B_d K restricted to position or velocity errors
-(navigation) and B_d (accelerations).
+(navigation) and B_d (accelerations). E_XY = max_m |X Phi^m Y| (the nominal loop, M = I, not
+divided by lam^m) bounds how far the prediction's own transient carries it from the virtual
+target after the terminal set (robust Verify's terminal ball, docs/robustness.md).
 """
 
 from __future__ import annotations
@@ -38,8 +40,8 @@ from .orbit import KeplerOrbit, elements_to_state
 # Layout of the packed robustness parameters (``Predictor.rparams``).
 (R_ON, R_LAM, R_C0PP, R_C0PV, R_C0VP, R_C0VV, R_DPP, R_DPV, R_CPE, R_DVP, R_DVV, R_CVE, R_KP, R_KV,
  R_NPF, R_NPG, R_NVF, R_NVG, R_EPSU, R_DMAX, R_KG, R_SINA, R_ZETA, R_GRAD, R_GPP, R_GPV, R_GVP,
- R_GVV, R_NRATE, R_HPP, R_HPV, R_HVP, R_HVV) = range(33)
-N_RPARAMS = 33
+ R_GVV, R_NRATE, R_HPP, R_HPV, R_HVP, R_HVV, R_EPP, R_EPV, R_EVP, R_EVV) = range(37)
+N_RPARAMS = 37
 
 #: Powers of the closed-loop matrix scanned for the constants C (lam^200 < 1e-11 here).
 N_POWERS = 200
@@ -66,14 +68,15 @@ class UnstableLoopError(ConfigError):
 @functools.lru_cache(maxsize=16)
 def tube_constants(orbit: KeplerOrbit, cfg: ControlConfig, bias: float = 0.0,
                    pointing_rad: float = 0.0) -> dict[str, float]:
-    """lam, the C, G and D constants and the gain norms |K_p|, |K_v| of the FTRE closed loop
+    """lam, the C, G, D, H and E constants and the gain norms |K_p|, |K_v| of the FTRE closed loop
     Phi_M = A_d - B_d M K flown with the thruster map M (:func:`thrust_matrices`), each the worst
-    over M and over the chief orbit's true anomaly (frozen-time analysis, every
-    ANALYSIS_STEP_DEG). Raises UnstableLoopError when some M makes the loop unstable."""
+    over M (E: over the nominal M = I only, the prediction's loop) and over the chief orbit's true
+    anomaly (frozen-time analysis, every ANALYSIS_STEP_DEG). Raises UnstableLoopError when some M
+    makes the loop unstable."""
     table = gain_table(orbit, cfg)
     n_cells = table.shape[0] - 1
     stride = max(1, round(ANALYSIS_STEP_DEG / cfg.grid_deg))
-    keys = ("lam", "kp", "kv") + tuple(f"{c}{row}{col}" for c in ("c0", "g", "d", "h")
+    keys = ("lam", "kp", "kv") + tuple(f"{c}{row}{col}" for c in ("c0", "g", "d", "h", "e")
                                         for row in "pv" for col in "pv") + ("cpe", "cve")
     out = {k: 0.0 for k in keys}
     systems = []
@@ -87,7 +90,7 @@ def tube_constants(orbit: KeplerOrbit, cfg: ControlConfig, bias: float = 0.0,
         for mat in thrust_matrices(bias, pointing_rad):
             bmk = b_d @ mat @ k
             phi = a_d - bmk
-            systems.append((phi, b_d, bmk))
+            systems.append((phi, b_d, bmk, bool(np.array_equal(mat, np.eye(3)))))
             out["lam"] = max(out["lam"], float(np.max(np.abs(np.linalg.eigvals(phi)))))
     if not out["lam"] < 1.0 - 1e-6:
         raise UnstableLoopError(
@@ -102,7 +105,7 @@ def tube_constants(orbit: KeplerOrbit, cfg: ControlConfig, bias: float = 0.0,
         out[key] = max(out[key], value)
 
     scale = lam ** -np.arange(N_POWERS + 1.0)
-    for phi, b_d, bmk in systems:
+    for phi, b_d, bmk, nominal in systems:
         powers = np.empty((N_POWERS + 2, 6, 6))
         powers[0] = np.eye(6)
         for m in range(N_POWERS + 1):
@@ -123,6 +126,9 @@ def tube_constants(orbit: KeplerOrbit, cfg: ControlConfig, bias: float = 0.0,
                 worst(f"d{row}{col}", float(np.max(norms(rp_[1:] @ dc[:, cols]) * scale)))
                 worst(f"c0{row}{col}", float(np.max(norms(rp_[:-1][:, :, cols]) * scale)))
             worst(f"c{row}e", float(np.max(norms(rp_[:-1] @ b_d) * scale)))
+            if nominal:  # the prediction's own loop: how far its transient can carry it
+                for col, cols in (("p", slice(0, 3)), ("v", slice(3, 6))):
+                    worst(f"e{row}{col}", float(np.max(norms(rp_[:-1][:, :, cols]))))
     return out
 
 
@@ -156,7 +162,8 @@ def robust_params(cfg: Config, orbit: KeplerOrbit) -> NDArray:
                       ("dpp", R_DPP), ("dpv", R_DPV), ("cpe", R_CPE), ("dvp", R_DVP),
                       ("dvv", R_DVV), ("cve", R_CVE), ("kp", R_KP), ("kv", R_KV),
                       ("gpp", R_GPP), ("gpv", R_GPV), ("gvp", R_GVP), ("gvv", R_GVV),
-                      ("hpp", R_HPP), ("hpv", R_HPV), ("hvp", R_HVP), ("hvv", R_HVV)):
+                      ("hpp", R_HPP), ("hpv", R_HPV), ("hvp", R_HVP), ("hvv", R_HVV),
+                      ("epp", R_EPP), ("epv", R_EPV), ("evp", R_EVP), ("evv", R_EVV)):
         rp[idx] = tc[name]
     rp[R_NRATE] = truth.nav_rate_per_s
     rp[R_NPF] = truth.bound("nav_pos_floor_km")

@@ -17,8 +17,10 @@ measured state and carries two scalar tube radii along it, rho_j (position, km) 
 (navigation, thruster, disturbance, unmodelled J2), from the closed-loop error dynamics of the
 FTRE law. Each constraint is then checked on the whole ball around the predicted state: h1 as the
 distance of the predicted position to the cone's surface, |p| sin(alpha - theta) >= rho_j; h3 with
-|v| + sigma_j and |p| - rho_j; the terminal set shrunk by rho_j and sigma_j. With every bound 0
-the tubes are 0 and robust Verify answers as nominal Verify.
+|v| + sigma_j and |p| - rho_j; at the terminal set, on the ball the truth can reach afterwards
+(the loop's own transient from there plus the tube's invariant set, :func:`robust_terminal_ok`).
+With every bound 0 the tubes are 0 and robust Verify answers as nominal Verify, but for that
+terminal ball: the transient it lets go must keep h1 and h3 too.
 
 The chief comes from its measured state (:class:`ChiefAnchor`): predictions start from the chief
 state received at t_k, propagated as a Kepler orbit, re-anchored whenever the measurement departs
@@ -46,7 +48,8 @@ from .orbit import (N_PARAMS, P_E, P_M0, P_MU, P_N, KeplerOrbit, check_states,
                     eccentric_anomaly_kernel, osculating_params_kernel, state_from_anomaly_kernel,
                     state_kernel, state_warm_kernel)
 from .robust import (R_C0PP, R_C0PV, R_C0VP, R_C0VV, R_CPE, R_CVE, R_DPP, R_DPV, R_DVP, R_DVV,
-                     R_GPP, R_GPV, R_GVP, R_GVV, R_HPP, R_HPV, R_HVP, R_HVV, R_NRATE,
+                     R_EPP, R_EPV, R_EVP, R_EVV, R_GPP, R_GPV, R_GVP, R_GVV, R_HPP, R_HPV, R_HVP,
+                     R_HVV, R_NRATE,
                      R_DMAX, R_EPSU, R_GRAD, R_KG, R_KP, R_KV, R_LAM, R_NPF, R_NPG, R_NVF, R_NVG, R_ON,
                      R_SINA, R_ZETA, robust_params)
 from .units import ns_to_seconds
@@ -202,23 +205,49 @@ def tube_step(rp: NDArray, u_max: float, ts: float, rng: float, vrel: float, rho
 
 @nb.njit(cache=True)
 def robust_terminal_ok(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, dp: float, dv: float,
-                       rho: float, sig: float, ts: float) -> bool:
+                       big_r: float, big_s: float, linear: bool, ts: float) -> bool:
     """The robust terminal test, once the prediction is in the nominal terminal set (dp, dv
-    from the virtual target x_v): the truth stays within dp + max(rho, rho_inf) and
-    dv + max(sigma, sigma_inf) of x_v, with rho_inf, sigma_inf the fixed points of the tube
-    recursion at x_v's range (the disturbance-invariant set of the tracking loop), and that
-    whole ball must satisfy h1 and h3 (docs/robustness.md, "terminal set")."""
-    rng = math.sqrt((xv[0] - xc[0]) ** 2 + (xv[1] - xc[1]) ** 2 + (xv[2] - xc[2]) ** 2) + dp + rho
-    bp, bv, d_p, d_v = nav_terms(rp, rng, dv + sig, ts)
-    eta = rp[R_EPSU] * min(cp[C_UMAX], rp[R_KP] * dp + rp[R_KV] * dv) + rp[R_DMAX] + rp[R_KG] * rng
+    from the virtual target x_v). The prediction does not stop there: the FTRE loop carries it
+    on along its transient, by at most P = E_pp dp + E_pv dv in position and V = E_vp dp + E_vv dv
+    in velocity from x_v (E_XY = max_m |X Phi^m Y|, the nominal loop; a low-gain loop with
+    0.1 m/s left coasts for metres), as long as that transient's command, at most
+    |K_p| P + |K_v| V, stays below u_max (else: not yet, the rollout goes on). The tube's
+    transient R, S (``big_r``, ``big_s``; held as the saturated phase's when not ``linear``)
+    then decays toward the fixed point R_inf, S_inf of its recursion, with the forcing and the
+    navigation offset G b bounded over the ball (the disturbance-invariant set of the tracking
+    loop), so the truth stays within P + max(R, R_inf) + G_p b and V + max(S, S_inf) + G_v b of
+    x_v, and that whole ball must satisfy h1 and h3 (docs/robustness.md, "terminal set")."""
+    big_p = rp[R_EPP] * dp + rp[R_EPV] * dv
+    big_v = rp[R_EVP] * dp + rp[R_EVV] * dv
+    un = rp[R_KP] * big_p + rp[R_KV] * big_v
+    if un >= cp[C_UMAX]:
+        return False
+    if not linear:  # the saturated phase's transient, as the loop takes it over (tube_step)
+        big_r, big_s = (rp[R_C0PP] * big_r + rp[R_C0PV] * big_s,
+                        rp[R_C0VP] * big_r + rp[R_C0VV] * big_s)
+    # The tube's radii bound the range and the relative speed of every future truth state; the
+    # offset's and the forcing's bounds there make R_inf and the offsets bounds as well.
+    rng = math.sqrt((xv[0] - xc[0]) ** 2 + (xv[1] - xc[1]) ** 2 + (xv[2] - xc[2]) ** 2)
+    vel = math.sqrt((xv[3] - xc[3]) ** 2 + (xv[4] - xc[4]) ** 2 + (xv[5] - xc[5]) ** 2)
     gain = 1.0 / (1.0 - rp[R_LAM])
-    rho_inf = gain * (rp[R_DPP] * d_p + rp[R_DPV] * d_v + rp[R_CPE] * eta) \
-        + rp[R_GPP] * bp + rp[R_GPV] * bv
-    sig_inf = gain * (rp[R_DVP] * d_p + rp[R_DVV] * d_v + rp[R_CVE] * eta) \
-        + rp[R_GVP] * bp + rp[R_GVV] * bv
-    big_r = dp + max(rho, rho_inf)
-    return (robust_h1_ok(xv, xc, cp, rp[R_SINA], big_r)
-            and robust_h3_ok(xv, xc, cp, big_r, dv + max(sig, sig_inf)))
+    rho = big_r
+    sig = big_s
+    for _ in range(50):  # the radii enter their own range and speed bounds: to the fixed point
+        rr = rng + big_p + rho
+        bp, bv, d_p, d_v = nav_terms(rp, rr, vel + big_v + sig, ts)
+        eta = rp[R_EPSU] * un + rp[R_DMAX] + rp[R_KG] * rr
+        new_r = max(big_r, gain * (rp[R_DPP] * d_p + rp[R_DPV] * d_v + rp[R_CPE] * eta)) \
+            + rp[R_GPP] * bp + rp[R_GPV] * bv
+        new_s = max(big_s, gain * (rp[R_DVP] * d_p + rp[R_DVV] * d_v + rp[R_CVE] * eta)) \
+            + rp[R_GVP] * bp + rp[R_GVV] * bv
+        settled = new_r - rho <= 1e-12 and new_s - sig <= 1e-15  # 1 nm, 1 pm/s
+        rho, sig = new_r, new_s
+        if settled:
+            break
+    else:
+        return False  # no fixed point: the navigation error grows faster than the ball
+    return (robust_h1_ok(xv, xc, cp, rp[R_SINA], big_p + rho)
+            and robust_h3_ok(xv, xc, cp, big_p + rho, big_v + sig))
 
 
 @nb.njit(cache=True)
@@ -294,7 +323,7 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
             dv2 += (x[3 + i] - xv[3 + i]) ** 2
         if dp2 <= tpos2 and dv2 <= tvel2:
             if not robust or robust_terminal_ok(xv, xc, cp, rp, math.sqrt(dp2), math.sqrt(dv2),
-                                                rho, sig, ts):
+                                                big_r, big_s, linear, ts):
                 return True
         a_n = ftre_control_kernel(table, nu_v, x, xv, u_max, kb, u)  # |u| before saturation
         # h2 holds by saturation up to rounding; checked so a changed control law cannot skip it.

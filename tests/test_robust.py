@@ -21,24 +21,30 @@ from cikan_ros.mission import nominal_start, run_mission, sample_start
 from cikan_ros.orbit import KeplerOrbit
 from cikan_ros.robust import (UnstableLoopError, j2_gradient_bound, thrust_matrices,
                               tube_constants)
-from cikan_ros.tsg import Predictor, robust_h1_ok
+from cikan_ros.tsg import Predictor, robust_h1_ok, robust_terminal_ok
 
 MU = 398600.4418
 CFG = load_config()
 ORBIT = KeplerOrbit.from_config(CFG.orbit)
 
 
-def loop_at(nu: float, m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def loop_at(nu: float, m: np.ndarray, cfg=CFG) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Phi_M = A_d - B_d M K, B_d, K of the FTRE loop at true anomaly nu (independent of robust.py's
     loop: the gain from the shipped table, the ZOH from scipy's expm)."""
-    pred = Predictor.from_config(CFG)
+    pred = Predictor.from_config(cfg)
     from cikan_ros.control import interpolate_gain
-    from cikan_ros.orbit import elements_to_state
 
-    r = elements_to_state(ORBIT.a, ORBIT.e, ORBIT.i, ORBIT.raan, ORBIT.argp, nu, MU)[:3]
-    a_d, b_d = zoh_discretise(linearisation(r, MU), B_INPUT, CFG.control.period_s)
+    r = chief_at(nu)[:3]
+    a_d, b_d = zoh_discretise(linearisation(r, MU), B_INPUT, cfg.control.period_s)
     k = interpolate_gain(pred.gains, nu)
     return a_d - b_d @ m @ k, b_d, k
+
+
+def chief_at(nu: float) -> np.ndarray:
+    """The configured chief's state at true anomaly nu."""
+    from cikan_ros.orbit import elements_to_state
+
+    return elements_to_state(ORBIT.a, ORBIT.e, ORBIT.i, ORBIT.raan, ORBIT.argp, nu, MU)
 
 
 @settings(max_examples=40, deadline=None)
@@ -122,6 +128,65 @@ def test_j2_gradient_bound(r, lat, lon):
                            for e in np.eye(3)])
     assert np.linalg.norm(jac, 2) <= j2_gradient_bound(6728.0, MU)
     assert np.linalg.norm(jac, 2) <= 12 * J2_EARTH * MU * R_EARTH_KM**2 / r**5 * (1 + 1e-6)
+
+
+#: A low-gain FTRE loop (R = 1e7 I: closed-loop time constants of tens of seconds), whose
+#: transient carries the deputy metres past the point where it entered the terminal set.
+LOW_GAIN = {"control.r_diag": [1e7] * 3}
+
+
+@settings(max_examples=300, deadline=None)
+@given(nu=st.floats(0.0, 2 * math.pi), behind_m=st.sampled_from([0.0, 0.5, 2.0, 4.0, 10.0]),
+       dp_m=st.floats(0.0, 1.0), dv_frac=st.floats(0.0, 1.0),
+       dirs=st.lists(st.floats(-1.0, 1.0), min_size=6, max_size=6).filter(
+           lambda d: min(np.linalg.norm(d[:3]), np.linalg.norm(d[3:])) > 1e-3),
+       r_diag=st.sampled_from([1e5, 1e7, 1e8]))
+def test_robust_terminal_set_holds_the_loop_it_lets_go(nu, behind_m, dp_m, dv_frac, dirs, r_diag):
+    """Once robust_terminal_ok accepts a state of the nominal terminal set (here with every error
+    bound 0: the tube is 0), Verify stops predicting: the loop's whole transient from there
+    (simulated with the independent loop of loop_at, frozen at the anomaly nu) must keep h1, with
+    the virtual target on the cone's axis behind the chief (0: tau = 0, the target is the chief
+    and the ball must fit inside the apex radius)."""
+    cfg = load_config(**{**truth_overrides("realistic"), "truth.scale": 0.0, "tsg.robust": True,
+                         "control.r_diag": [r_diag] * 3})
+    pred = Predictor.from_config(cfg)
+    x_c = chief_at(nu)
+    axis = -x_c[3:] / np.linalg.norm(x_c[3:])
+    x_v = x_c.copy()
+    x_v[:3] += behind_m * 1e-3 * axis
+    d = np.asarray(dirs)
+    e = np.concatenate([d[:3] / np.linalg.norm(d[:3]) * dp_m * 1e-3,
+                        d[3:] / np.linalg.norm(d[3:]) * dv_frac ** 2 * 1e-4])
+    if not robust_terminal_ok(x_v, x_c, pred.cparams, pred.rparams, dp_m * 1e-3, dv_frac ** 2 * 1e-4,
+                              0.0, 0.0, True, cfg.tsg.sample_period_s):
+        return
+    phi, _, _ = loop_at(nu, np.eye(3), cfg)
+    cp = pred.cparams
+    for _ in range(2000):
+        y = x_v.copy()
+        y[:3] += e[:3]
+        p = y[:3] - x_c[:3]
+        pn = np.linalg.norm(p)
+        # inside the apex radius, or inside the cone (1e-3 of slack for the frozen-time analysis
+        # every 15 deg of anomaly behind the constants)
+        assert pn <= cp[1] * (1 + 1e-3) or \
+            h1_line_of_sight_kernel(y, x_c, cp) <= 1e-3 * pn * np.linalg.norm(x_c[3:]), (pn, e)
+        e = phi @ e
+
+
+@pytest.mark.parametrize("r_diag, seed, extra", [
+    (1e7, 22, {"truth.scale": 0.5}),
+    (1e5, 61, {"truth.thrust_bias_max": 0.0, "truth.thrust_pointing_max_deg": 0.0}),
+    (1e8, 19, {})])
+def test_robust_verify_keeps_h1_past_the_terminal_set(r_diag, seed, extra):
+    """Missions where the deputy entered the terminal set with up to 0.1 m/s left and the loop
+    carried it through the apex radius (tau = 0) or past the virtual target (tau = -5e-4 s, 2 m
+    from the chief) out of the cone: the terminal set must bound the loop's transient."""
+    cfg = load_config(**{**truth_overrides("realistic"), "tsg.robust": True,
+                         "control.r_diag": [r_diag] * 3, **extra})
+    gov = ConventionalGovernor.from_config(cfg)
+    m = run_mission(gov, sample_start(gov.predictor, seed), seed).metrics()
+    assert m["violations"] == 0 and m["success"], m
 
 
 def test_robust_verify_with_zero_bounds_is_nominal_verify():
