@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from ..config import Config
+from ..errors import CikanError
 
 
 def lockstep_figures(cfg: Config, executor: str) -> dict[str, Any]:
@@ -40,6 +41,11 @@ def lockstep_figures(cfg: Config, executor: str) -> dict[str, Any]:
             os.environ["CIKAN_ROS_EXECUTOR"] = previous
         shutil.rmtree(tmp, ignore_errors=True)
     ros = m["ros"]
+    missing = [k for k in ("rtf", "step_ms_p50", "step_ms_p99", "update_step_ms_max", "wall_s")
+               if k not in ros]
+    if missing:  # the simulator's closing summary (a /diagnostics message) is not in the bag
+        raise CikanError(f"the ROS benchmark mission ({executor} executor) recorded no lockstep "
+                         f"summary of sim_node (missing {', '.join(missing)}): no ROS figures")
     return {"rtf": ros["rtf"], "step_ms_p50": ros["step_ms_p50"], "step_ms_p99": ros["step_ms_p99"],
             "update_step_ms_max": ros["update_step_ms_max"],
             "decision_ms_max": max(m["initial_ms"], m["update_ms_max"]), "lockstep_wall_s": ros["wall_s"],
