@@ -271,6 +271,25 @@ class Readiness:
         self.node, self.peer = node, peer
         self.pub = node.create_publisher(DiagnosticStatus, READY, QOS_LATCHED)
         self.ready = False
+        self._timer = None
+
+    def publisher_events(self) -> Any:
+        """Event callbacks for the node's publishers: a matched event re-checks at once."""
+        from rclpy.event_handler import PublisherEventCallbacks
+
+        return PublisherEventCallbacks(matched=lambda _status: self.poke())
+
+    def subscription_events(self) -> Any:
+        """Event callbacks for the node's subscriptions: a matched event re-checks at once."""
+        from rclpy.event_handler import SubscriptionEventCallbacks
+
+        return SubscriptionEventCallbacks(matched=lambda _status: self.poke())
+
+    def poke(self) -> None:
+        """Re-check now (a matched event, an announcement): between polls of the timer."""
+        done = getattr(self.node, "done", None)
+        if self._timer is not None and not self.ready and not (done is not None and done.done()):
+            self._poll()
 
     def start(self, waits: list[tuple[Any, int]], reads: list[tuple[Any, int]], timeout_s: float,
               on_ready: Callable[[], None], check: Callable[[], list[str]] | None = None) -> None:
@@ -281,7 +300,10 @@ class Readiness:
         self._clock = Clock(clock_type=ClockType.STEADY_TIME)
         self._t0 = self._clock.now()
         self._said = False
-        self._timer = self.node.create_timer(0.02, self._poll, clock=self._clock)
+        # Matched events (rclpy's PublisherEventCallbacks / SubscriptionEventCallbacks, measured to
+        # fire with both executors) and announcements re-check at once; this poll covers what has
+        # no event (discovery of other nodes' endpoints) and the timeout.
+        self._timer = self.node.create_timer(0.1, self._poll, clock=self._clock)
 
     def missing(self) -> list[str]:
         """One text per endpoint not yet matched (how many, from whom, who is there), then check()'s."""
@@ -318,6 +340,7 @@ class Readiness:
             return
         self._timer.cancel()
         self.node.destroy_timer(self._timer)
+        self._timer = None
         if missing:
             self.node.get_logger().error(
                 f"giving up after {waited:.1f} s (graph.startup_timeout_s): not ready: " + "; ".join(missing)
@@ -349,10 +372,10 @@ class PeerWatch:
     checks of the simulator's own endpoints and the announcements of the controller and the
     recorder, whose /tsg/time_shift subscriptions must be matched to it)."""
 
-    def __init__(self, node: Any, peers: Iterable[str]) -> None:
+    def __init__(self, node: Any, peers: Iterable[str], poke: Callable[[], None] = lambda: None) -> None:
         from diagnostic_msgs.msg import DiagnosticStatus
 
-        self.node = node
+        self.node, self.poke = node, poke
         self.peers = [p for p in peers if p != "sim"]
         self.announced: dict[str, str] = {}
         node.create_subscription(DiagnosticStatus, READY, self.on_ready, QOS_READY_READER)
@@ -361,6 +384,7 @@ class PeerWatch:
         if msg.message == "ready" and msg.name not in self.announced:
             self.announced[msg.name] = msg.hardware_id
             self.node.get_logger().info(f"{msg.name} ready ({msg.hardware_id})")
+            self.poke()
 
     def silent_governor(self) -> str | None:
         """The node name of a governor that keeps today's contract without announcing itself and is
