@@ -357,14 +357,10 @@ class Readiness:
         self.ready = True
         values = {"reads": ",".join(s.topic_name for s, _ in self.reads),
                   "writes": ",".join(p.topic_name for p, _ in self.waits)}
-        msg = DiagnosticStatus(level=DiagnosticStatus.OK, name=self.peer, message="ready",
-                               hardware_id=self.node.get_fully_qualified_name(),
-                               values=[KeyValue(key=k, value=v) for k, v in values.items()])
-        self.pub.publish(msg)
-        # Said again every second: a soak run (1 in 50) saw the simulator never take a governor's
-        # latched announcement (transient local, reliable; the reader's event seems lost under
-        # load); each repeat is a new message event, so a stuck announcement is taken too.
-        self._repeat = self.node.create_timer(1.0, lambda: self.pub.publish(msg), clock=self._clock)
+        self.pub.publish(DiagnosticStatus(
+            level=DiagnosticStatus.OK, name=self.peer, message="ready",
+            hardware_id=self.node.get_fully_qualified_name(),
+            values=[KeyValue(key=k, value=v) for k, v in values.items()]))
         self.node.get_logger().info("ready (announced on /graph/ready)")
 
 
