@@ -27,6 +27,7 @@ COMMAND_MODULES = (
     "cikan_ros.commands.tune",
     "cikan_ros.commands.models",
     "cikan_ros.commands.replay",
+    "cikan_ros.commands.soak",
 )
 
 

@@ -28,7 +28,7 @@ from cikan_ros.mission import ClosedLoop
 from cikan_ros.ros import convert as cv
 from cikan_ros.ros.graph import (PATH_HOLD, ACCEL_CMD, CHIEF_ODOM, DEPUTY_ODOM, DIAGNOSTICS, QOS_STREAM,
                                  TIME_SHIFT, Readiness, cached_predictor, declare_config, qos_for,
-                                 required_readers, run_node)
+                                 required_publishers, required_readers, run_node)
 from cikan_ros.ros.params import NodeSpec, declare_parameters
 
 NAME = "controller_node"
@@ -41,6 +41,7 @@ class ControllerNode(Node):
 
     def __init__(self) -> None:
         super().__init__(NAME)
+        self.readiness = Readiness(self, "controller")   # first: the /graph/ready publisher
         self.cfg = cfg = declare_config(self)
         p = declare_parameters(self, SPEC)
         deadline = float(p["controller.tau_deadline_s"])
@@ -57,20 +58,23 @@ class ControllerNode(Node):
         self.waiting: int | None = None   # step whose shift is awaited
         self.lost = False
         self.pending: dict[int, dict[str, Any]] = {}
-        self.pub_accel = self.create_publisher(AccelStamped, ACCEL_CMD, QOS_STREAM)
-        self.pub_diag = self.create_publisher(DiagnosticArray, DIAGNOSTICS, qos_for(DIAGNOSTICS))
+        self.pub_accel = self.create_publisher(AccelStamped, ACCEL_CMD, QOS_STREAM, event_callbacks=self.readiness.publisher_events())
+        self.pub_diag = self.create_publisher(DiagnosticArray, DIAGNOSTICS, qos_for(DIAGNOSTICS), event_callbacks=self.readiness.publisher_events())
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.deadline = self.create_timer(deadline, self.on_deadline, clock=steady, autostart=False)
         self.lost_deadline = self.create_timer(lost, self.on_deadline, clock=steady, autostart=False)
+        subs = [self.create_subscription(Odometry, DEPUTY_ODOM, self.on_deputy, QOS_STREAM,
+                                        event_callbacks=self.readiness.subscription_events()),
+                self.create_subscription(Odometry, CHIEF_ODOM, self.on_chief, QOS_STREAM,
+                                        event_callbacks=self.readiness.subscription_events()),
+                self.create_subscription(TimeReference, TIME_SHIFT, self.on_shift, QOS_STREAM,
+                                        event_callbacks=self.readiness.subscription_events())]
         waits = [(self.pub_accel, required_readers(ACCEL_CMD, peers)),
                  (self.pub_diag, required_readers(DIAGNOSTICS, peers))]
-        Readiness(self, waits, timeout, self.join).start()
-
-    def join(self) -> None:
-        self.create_subscription(Odometry, DEPUTY_ODOM, self.on_deputy, QOS_STREAM)
-        self.create_subscription(Odometry, CHIEF_ODOM, self.on_chief, QOS_STREAM)
-        self.create_subscription(TimeReference, TIME_SHIFT, self.on_shift, QOS_STREAM)
-        self.get_logger().info("ready")
+        # Ready once the sim's states and the governor's shift are matched (the sim waits for it):
+        # a governor that does not announce itself is known ready by this /tsg/time_shift match.
+        self.readiness.start(waits, [(s, required_publishers(s.topic_name, peers)) for s in subs], timeout,
+                             lambda: None)
 
     def diag(self, level: str, text: str, stamp: int, values: dict[str, Any]) -> None:
         self.pub_diag.publish(cv.diagnostic(NAME, level, text, stamp, values))

@@ -28,7 +28,8 @@ from cikan_ros.mission import ClosedLoop, nominal_start
 from cikan_ros.ros import convert as cv
 from cikan_ros.ros.graph import (PATH_HOLD, CHIEF_ODOM, DEPUTY_ODOM, DIAGNOSTICS, GOVERNOR_INFO,
                                  QOS_LATCHED, QOS_STREAM, TIME_SHIFT, Readiness, cached_predictor,
-                                 declare_config, qos_for, required_readers, run_node)
+                                 declare_config, qos_for, required_publishers, required_readers,
+                                 run_node)
 from cikan_ros.ros.params import NodeSpec, declare_parameters
 
 NAME = "governor_node"
@@ -41,6 +42,7 @@ class GovernorNode(Node):
 
     def __init__(self) -> None:
         super().__init__(NAME)
+        self.readiness = Readiness(self, "governor")   # first: the /graph/ready publisher
         self.cfg = cfg = declare_config(self)
         p = declare_parameters(self, SPEC)
         name = str(p["governor.name"])
@@ -54,19 +56,18 @@ class GovernorNode(Node):
         self.tau: float | None = None
         self.last_k = -1
         self.pending: dict[int, dict[str, Any]] = {}
-        self.pub_tau = self.create_publisher(TimeReference, TIME_SHIFT, QOS_STREAM)
-        self.pub_diag = self.create_publisher(DiagnosticArray, DIAGNOSTICS, qos_for(DIAGNOSTICS))
+        self.pub_tau = self.create_publisher(TimeReference, TIME_SHIFT, QOS_STREAM, event_callbacks=self.readiness.publisher_events())
+        self.pub_diag = self.create_publisher(DiagnosticArray, DIAGNOSTICS, qos_for(DIAGNOSTICS), event_callbacks=self.readiness.publisher_events())
         self.requested = name
         self.add_on_set_parameters_callback(self.on_parameters)
+        subs = [self.create_subscription(Odometry, t, lambda m, w=w: self.on_odom(w, m), QOS_STREAM,
+                                        event_callbacks=self.readiness.subscription_events())
+                for t, w in ((CHIEF_ODOM, "chief"), (DEPUTY_ODOM, "deputy"))]
         waits = [(self.pub_tau, required_readers(TIME_SHIFT, peers)),
                  (self.pub_diag, required_readers(DIAGNOSTICS, peers))]
-        Readiness(self, waits, timeout, self.join).start()
-
-    def join(self) -> None:
-        """Subscribe to the states once the readers of the shift are there (the sim waits for it)."""
-        self.create_subscription(Odometry, CHIEF_ODOM, lambda m: self.on_odom("chief", m), QOS_STREAM)
-        self.create_subscription(Odometry, DEPUTY_ODOM, lambda m: self.on_odom("deputy", m), QOS_STREAM)
-        self.get_logger().info(f"ready: governor {self.governor.name}")
+        # Loaded and warmed up, subscribed: ready once these are matched (the sim waits for it).
+        self.readiness.start(waits, [(s, required_publishers(s.topic_name, peers)) for s in subs], timeout,
+                             lambda: self.get_logger().info(f"ready: governor {self.governor.name}"))
 
     def on_parameters(self, params: list[Any]) -> SetParametersResult:
         for p in params:

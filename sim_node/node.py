@@ -31,8 +31,9 @@ from cikan_ros.constraints import margins
 from cikan_ros.mission import ClosedLoop, nominal_start, sample_start
 from cikan_ros.ros import convert as cv
 from cikan_ros.ros.graph import (ACCEL_CMD, CHIEF_ODOM, CLOCK, DEPUTY_ODOM, DIAGNOSTICS, QOS_STREAM,
-                                 TRUTH_ACCEL, TRUTH_CHIEF, TRUTH_DEPUTY, Readiness, cached_predictor,
-                                 declare_config, qos_for, required_readers, run_node)
+                                 TRUTH_ACCEL, TRUTH_CHIEF, TRUTH_DEPUTY, PeerWatch, Readiness,
+                                 cached_predictor, declare_config, qos_for, required_publishers,
+                                 required_readers, run_node)
 from cikan_ros.truth import Truth
 from cikan_ros.ros.params import NodeSpec, declare_parameters
 
@@ -46,6 +47,7 @@ class SimNode(Node):
 
     def __init__(self) -> None:
         super().__init__(NAME)
+        self.readiness = Readiness(self, "sim")   # first: the /graph/ready publisher
         self.cfg = cfg = declare_config(self)
         p = declare_parameters(self, SPEC)
         seed = int(p["sim.seed"])
@@ -71,14 +73,15 @@ class SimNode(Node):
         self.latency_ms: list[float] = []
         self.latency_update_ms: list[float] = []
         self.done = Future()
-        self.pub_clock = self.create_publisher(ClockMsg, CLOCK, QOS_STREAM)
-        self.pub_chief = self.create_publisher(Odometry, CHIEF_ODOM, QOS_STREAM)
-        self.pub_deputy = self.create_publisher(Odometry, DEPUTY_ODOM, QOS_STREAM)
-        self.pub_diag = self.create_publisher(DiagnosticArray, DIAGNOSTICS, qos_for(DIAGNOSTICS))
-        self.pub_truth_chief = self.create_publisher(Odometry, TRUTH_CHIEF, QOS_STREAM)
-        self.pub_truth_deputy = self.create_publisher(Odometry, TRUTH_DEPUTY, QOS_STREAM)
-        self.pub_truth_accel = self.create_publisher(AccelStamped, TRUTH_ACCEL, QOS_STREAM)
-        self.create_subscription(AccelStamped, ACCEL_CMD, self.on_accel, QOS_STREAM)
+        self.pub_clock = self.create_publisher(ClockMsg, CLOCK, QOS_STREAM, event_callbacks=self.readiness.publisher_events())
+        self.pub_chief = self.create_publisher(Odometry, CHIEF_ODOM, QOS_STREAM, event_callbacks=self.readiness.publisher_events())
+        self.pub_deputy = self.create_publisher(Odometry, DEPUTY_ODOM, QOS_STREAM, event_callbacks=self.readiness.publisher_events())
+        self.pub_diag = self.create_publisher(DiagnosticArray, DIAGNOSTICS, qos_for(DIAGNOSTICS), event_callbacks=self.readiness.publisher_events())
+        self.pub_truth_chief = self.create_publisher(Odometry, TRUTH_CHIEF, QOS_STREAM, event_callbacks=self.readiness.publisher_events())
+        self.pub_truth_deputy = self.create_publisher(Odometry, TRUTH_DEPUTY, QOS_STREAM, event_callbacks=self.readiness.publisher_events())
+        self.pub_truth_accel = self.create_publisher(AccelStamped, TRUTH_ACCEL, QOS_STREAM, event_callbacks=self.readiness.publisher_events())
+        self.sub_accel = self.create_subscription(AccelStamped, ACCEL_CMD, self.on_accel, QOS_STREAM,
+                                        event_callbacks=self.readiness.subscription_events())
         self.steady = steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.deadline = self.create_timer(self.deadline_s, self.on_deadline, clock=steady, autostart=False)
         self.lost_deadline = self.create_timer(self.lost_deadline_s, self.on_deadline, clock=steady,
@@ -87,7 +90,9 @@ class SimNode(Node):
                  ((self.pub_deputy, DEPUTY_ODOM), (self.pub_chief, CHIEF_ODOM), (self.pub_clock, CLOCK),
                   (self.pub_diag, DIAGNOSTICS), (self.pub_truth_chief, TRUTH_CHIEF),
                   (self.pub_truth_deputy, TRUTH_DEPUTY), (self.pub_truth_accel, TRUTH_ACCEL))]
-        Readiness(self, waits, timeout, self.start).start()
+        self.peers = PeerWatch(self, peers, self.readiness.poke)
+        self.readiness.start(waits, [(self.sub_accel, required_publishers(ACCEL_CMD, peers))], timeout,
+                             self.start, self.peers.missing)
 
     # -- lockstep -------------------------------------------------------------------------------
     def start(self) -> None:

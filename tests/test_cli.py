@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import subprocess
@@ -99,6 +100,35 @@ def test_negative_seed_is_one_line(tmp_path) -> None:
         assert "Traceback" not in out.stderr
 
 
+def _parser_vocabulary() -> tuple[list[str], list[str]]:
+    """(every subcommand, every option string of every subcommand): taken from the parser itself,
+    so a new subcommand or option is covered without editing the test."""
+    from cikan_ros.cli import build_parser
+
+    parser = build_parser()
+    (sub,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    options = sorted({o for p in sub.choices.values() for a in p._actions for o in a.option_strings
+                      if o not in ("-h", "--help")})
+    return sorted(sub.choices), options
+
+
+COMMANDS, OPTIONS = _parser_vocabulary()
+VALUES = ["-3", "0", "1e9", "nan", "x=1", "abc", "", "--", "conventional", "a b"]
+
+
+def test_vocabulary_covers_every_subcommand() -> None:
+    from cikan_ros.cli import COMMAND_MODULES
+
+    assert len(COMMANDS) == len(COMMAND_MODULES) and "soak" in COMMANDS and "--runs" in OPTIONS
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.sampled_from(COMMANDS), st.lists(st.sampled_from(OPTIONS + VALUES), max_size=6))
+def test_every_subcommand_parser_errors_are_one_line(command: str, rest: list[str]) -> None:
+    """Any subcommand with generated arguments: accepted, or exit code 2 and one line."""
+    check_one_line([command, *rest])
+
+
 @settings(max_examples=150, deadline=None)
 @given(st.lists(st.sampled_from(["mission", "montecarlo", "report", "bench", "--seed", "-3", "1e9", "nan",
                                  "--runs", "--out", "--truth", "--set", "x=1", "--robust", "--offline",
@@ -106,16 +136,24 @@ def test_negative_seed_is_one_line(tmp_path) -> None:
                 max_size=6))
 def test_parser_errors_are_one_line(argv: list[str]) -> None:
     """Whatever the argument list, the parser either accepts it or exits with code 2 and one line
-    (never a traceback); --help and --version exit 0."""
+    (never a traceback)."""
+    check_one_line(argv)
+
+
+def check_one_line(argv: list[str]) -> None:
+    """``cikan ARGV`` parses, or exits with code 2 and one line naming the problem."""
     import contextlib
     import io
 
     from cikan_ros.cli import build_parser
 
-    err = io.StringIO()
-    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+    err, out = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(out):
         try:
             build_parser().parse_args(argv)
         except SystemExit as exc:
+            if exc.code == 0:   # an option that prints and exits (--help, --version, abbreviated)
+                assert out.getvalue().startswith(("usage: ", "cikan_ros ")) and not err.getvalue(), argv
+                return
             assert exc.code == 2, (argv, exc.code)
             assert err.getvalue().count("\n") == 1 and "error:" in err.getvalue(), err.getvalue()

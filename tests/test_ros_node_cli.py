@@ -21,7 +21,7 @@ BIN = Path(sys.executable).parent
 ROOT = Path(__file__).resolve().parent.parent
 #: Node executable -> the groups of config/nodes.yaml it declares (README / config/nodes.yaml header).
 NODES = {"sim_node": ("sim", "graph"), "governor_node": ("governor", "graph"),
-         "controller_node": ("controller", "graph"), "recorder_node": ("recorder",)}
+         "controller_node": ("controller", "graph"), "recorder_node": ("recorder", "graph")}
 
 
 def yaml_comments(path: Path) -> dict[str, str]:
@@ -77,7 +77,7 @@ def test_help_lists_every_parameter_and_does_not_start_rclpy(node: str, ros_env:
 
 @pytest.mark.parametrize("args, problem", [
     (["governor_node", "--ros-args", "-p", "governor.nmae:=cikan"], "unknown parameter 'governor.nmae' (did you mean governor.name?)"),
-    (["recorder_node", "--ros-args", "-p", "recorder.bag:=BAG", "-p", "graph.peers:=[sim,recorder]"], "unknown parameter 'graph.peers'"),
+    (["recorder_node", "--ros-args", "-p", "recorder.bag:=BAG", "-p", "sim.seed:=3"], "unknown parameter 'sim.seed'"),
     (["sim_node", "--ros-args", "-p", "sim.seed:=three"], "sim.seed"),
     (["sim_node", "--ros-args", "-p", "orbit.e:=1.5"], "orbit.e"),
     (["controller_node", "--ros-args", "--params-file", "no/such/params.yaml"], "no/such/params.yaml"),
@@ -114,7 +114,9 @@ def test_lone_node_says_what_it_waits_for_and_gives_up(ros_env: int) -> None:
     out = run(["sim_node", "--ros-args", "-p", "graph.startup_timeout_s:=2.0"])
     assert out.returncode == 1
     log = out.stderr
-    assert "waiting up to 2 s (graph.startup_timeout_s) for the readers of /deputy/odom: 0 of 2 readers " \
-           "(expected governor, controller)" in log
-    assert "giving up after" in log and "/chief/odom: 0 of 2 readers (expected governor, controller)" in log
+    assert "waiting up to 2 s (graph.startup_timeout_s) for /deputy/odom: 0 of 1 readers matched " \
+           "(expected controller)" in log
+    (line,) = [ln for ln in log.splitlines() if "giving up after" in ln]   # one line names who is not ready
+    assert "not ready: " in line and "/chief/odom: 0 of 1 readers matched (expected controller)" in line
+    assert "governor: no announcement on /graph/ready" in line and "controller: no announcement" in line
     assert "mission complete" not in log and "no command for" not in log   # no fake mission

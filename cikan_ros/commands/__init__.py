@@ -13,15 +13,21 @@ from ..config import Config
 from ..errors import ConfigError
 
 
-def seed_arg(text: str) -> int:
-    """argparse type of a seed: an integer >= 0 (numpy's generators take no negative seed)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"seed must be an integer >= 0, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"seed must be an integer >= 0, got {value}")
-    return value
+def int_at_least(minimum: int, what: str) -> Any:
+    """argparse type of an integer >= ``minimum`` (one-line error naming ``what``)."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{what} must be an integer >= {minimum}, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"{what} must be an integer >= {minimum}, got {value}")
+        return value
+    return parse
+
+
+#: argparse type of a seed: an integer >= 0 (numpy's generators take no negative seed).
+seed_arg = int_at_least(0, "seed")
 
 
 def add_config_args(parser: argparse.ArgumentParser) -> None:

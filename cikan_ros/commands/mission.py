@@ -29,6 +29,7 @@ AUDIT_KEYS = (
     ("unverified_shifts", "time shifts not verified (audit)", "{}"),
     ("off_schedule_shifts", "time shifts changed off schedule", "{}"),
     ("missing_shifts", "steps without a time shift", "{}"),
+    ("lockstep_deadlines", "wall-clock deadlines fired (each fails the run)", "{}"),
 )
 
 
@@ -112,4 +113,7 @@ def run(args: argparse.Namespace) -> int:
         start = "nominal start" if args.seed is None else f"Monte Carlo start, seed {args.seed}"
         print_summary(metrics, f"cikan mission: {metrics['governor']} governor, {start} ({metrics['mode']})")
     sys.stdout.flush()
+    if metrics.get("lockstep_deadlines"):
+        print(f"cikan mission: failed: {metrics['lockstep_deadlines']} wall-clock deadline(s) fired in the "
+              "lockstep (a node answered late or not at all; see /diagnostics in the bag)", file=sys.stderr)
     return 0 if metrics["success"] else 1

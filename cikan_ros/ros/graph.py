@@ -15,6 +15,9 @@ QoS, chosen on purpose:
   blocks publishers when a reader dies without being noticed, which would stall the lockstep.
 - ``/clock`` offered the same way: compatible with rclpy's own best-effort /clock subscription,
   and the recorder and replay keep every tick.
+- ``/graph/ready`` (the readiness handshake) likewise RELIABLE, TRANSIENT_LOCAL, depth 1 per
+  writer: a simulator that starts after a peer still hears its announcement. Its reader is
+  deeper (:data:`QOS_READY_READER`): one reader history holds every writer's announcement.
 - ``/tsg/governor`` (the governor's announcement of which governor flies): RELIABLE,
   TRANSIENT_LOCAL, depth 1, so a recorder that joins later still hears the last one.
 
@@ -67,10 +70,12 @@ TOPIC_TYPES: dict[str, str] = {
 
 #: Which nodes read a topic (the recorder reads all): what a publisher waits for before starting.
 #: /clock readers are not awaited: rclpy's use_sim_time subscription is an implementation detail.
+#: The governor is not a required reader of the states: a governor may read only /deputy/odom
+#: (the simulator waits for it through the readiness handshake, :class:`PeerWatch`).
 CONSUMERS: dict[str, tuple[str, ...]] = {
     CLOCK: (),
-    CHIEF_ODOM: ("governor", "controller"),
-    DEPUTY_ODOM: ("governor", "controller"),
+    CHIEF_ODOM: ("controller",),
+    DEPUTY_ODOM: ("controller",),
     TIME_SHIFT: ("controller",),
     ACCEL_CMD: ("sim",),
     DIAGNOSTICS: (),
@@ -78,6 +83,18 @@ CONSUMERS: dict[str, tuple[str, ...]] = {
     TRUTH_DEPUTY: (),
     TRUTH_ACCEL: (),
 }
+
+#: Which peers publish a topic: what a subscription waits for (reader side) before its node is ready.
+PRODUCERS: dict[str, tuple[str, ...]] = {
+    CLOCK: ("sim",), CHIEF_ODOM: ("sim",), DEPUTY_ODOM: ("sim",), TRUTH_CHIEF: ("sim",),
+    TRUTH_DEPUTY: ("sim",), TRUTH_ACCEL: ("sim",), TIME_SHIFT: ("governor",), ACCEL_CMD: ("controller",),
+    DIAGNOSTICS: ("sim", "governor", "controller"),
+}
+
+#: The readiness handshake (README, "Start"): each peer announces itself here once it is ready
+#: (diagnostic_msgs/DiagnosticStatus, name = peer, message "ready", hardware_id = node name;
+#: latched). The simulator starts the lockstep once every peer of ``graph.peers`` is ready.
+READY = "/graph/ready"
 
 #: /tsg/time_shift source when no decision was made at this step: the last verified shift holds.
 PATH_HOLD = "hold"
@@ -88,6 +105,13 @@ QOS_RECORD = QOS_STREAM
 #: /tsg/governor: the last announcement reaches readers that join later (transient local, depth 1).
 QOS_LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+#: The reader of /graph/ready: transient local like its writers, but deep. A keyless topic's
+#: reader history is shared by all writers, so at depth 1 a peer's announcement that arrives
+#: before the executor took another's replaces it (seen: the controller's lost, the sim waited).
+QOS_READY_READER = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=64, reliability=ReliabilityPolicy.RELIABLE,
+                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def qos_for(topic: str) -> QoSProfile:
@@ -107,6 +131,14 @@ def required_readers(topic: str, peers: Iterable[str]) -> int:
     """How many readers ``topic`` has in a graph made of ``peers`` (node names)."""
     peers = set(peers)
     return sum(1 for n in CONSUMERS[topic] if n in peers) + (1 if "recorder" in peers else 0)
+
+
+def required_publishers(topic: str, peers: Iterable[str]) -> int:
+    """How many publishers a reader of ``topic`` waits for in a graph made of ``peers``: one if any
+    of its producers is a peer (the governor's /diagnostics, optional in the contract, is not awaited)."""
+    peers = set(peers)
+    producers = [n for n in PRODUCERS.get(topic, ()) if n in peers and not (topic == DIAGNOSTICS and n == "governor")]
+    return 1 if producers else 0
 
 
 # -- parameters ---------------------------------------------------------------------------------
@@ -213,40 +245,88 @@ EXIT_BAD_INPUT = 2
 EXIT_NO_PEERS = 1
 
 
-@dataclass
 class Readiness:
-    """Waits (on a steady timer, never blocking) until each publisher has its readers, then calls
-    ``on_ready`` once. Used by every node so the lockstep never starts with a reader missing.
-    It logs what it waits for; after ``timeout_s`` it logs what is still missing and ends the node
-    with :data:`EXIT_NO_PEERS` (through the node's ``done`` future, see :func:`run_node`)."""
+    """The readiness handshake every node of the graph takes part in (README, "Start").
 
-    node: Any
-    waits: list[tuple[Any, int]]   # (publisher, readers required)
-    timeout_s: float
-    on_ready: Callable[[], None]
+    Construct it first thing in the node: it creates the node's /graph/ready publisher (latched:
+    RELIABLE, TRANSIENT_LOCAL, depth 1) before any other endpoint, so a peer that discovers one
+    of the node's topics has already discovered that the node will announce itself. Then, once
+    the node has loaded, warmed up and made its publishers and subscriptions, :meth:`start` polls
+    (on a steady timer, never blocking) until
 
-    def start(self) -> None:
+    - each of its publishers is matched (writer side) to its required readers and to every reader
+      of that topic discovered on the domain (``waits``),
+    - each of its subscriptions is matched to its required publishers (``reads``),
+    - ``check()`` (if given) reports nothing missing,
+
+    then announces ``ready`` on /graph/ready (DiagnosticStatus: name = peer name, hardware_id =
+    node name, values ``reads`` and ``writes``) and calls ``on_ready`` once. It logs what it waits
+    for; after ``timeout_s`` it logs one error line naming what is missing and ends the node with
+    :data:`EXIT_NO_PEERS` (through the node's ``done`` future, see :func:`run_node`); a
+    ``timeout_s`` of ``inf`` waits for ever (the recorder)."""
+
+    def __init__(self, node: Any, peer: str) -> None:
+        from diagnostic_msgs.msg import DiagnosticStatus
+
+        self.node, self.peer = node, peer
+        self.pub = node.create_publisher(DiagnosticStatus, READY, QOS_LATCHED)
+        self.ready = False
+        self._timer = None
+
+    def publisher_events(self) -> Any:
+        """Event callbacks for the node's publishers: a matched event re-checks at once."""
+        from rclpy.event_handler import PublisherEventCallbacks
+
+        return PublisherEventCallbacks(matched=lambda _status: self.poke())
+
+    def subscription_events(self) -> Any:
+        """Event callbacks for the node's subscriptions: a matched event re-checks at once."""
+        from rclpy.event_handler import SubscriptionEventCallbacks
+
+        return SubscriptionEventCallbacks(matched=lambda _status: self.poke())
+
+    def poke(self) -> None:
+        """Re-check now (a matched event, an announcement): between polls of the timer."""
+        done = getattr(self.node, "done", None)
+        if self._timer is not None and not self.ready and not (done is not None and done.done()):
+            self._poll()
+
+    def start(self, waits: list[tuple[Any, int]], reads: list[tuple[Any, int]], timeout_s: float,
+              on_ready: Callable[[], None], check: Callable[[], list[str]] | None = None) -> None:
         from rclpy.clock import Clock, ClockType
 
+        self.waits, self.reads, self.timeout_s, self.on_ready, self.check = waits, reads, timeout_s, \
+            on_ready, check
         self._clock = Clock(clock_type=ClockType.STEADY_TIME)
         self._t0 = self._clock.now()
         self._said = False
-        self._timer = self.node.create_timer(0.02, self._poll, clock=self._clock)
+        # Matched events (rclpy's PublisherEventCallbacks / SubscriptionEventCallbacks, measured to
+        # fire with both executors) and announcements re-check at once; this poll covers what has
+        # no event (discovery of other nodes' endpoints) and the timeout.
+        self._timer = self.node.create_timer(0.1, self._poll, clock=self._clock)
 
     def missing(self) -> list[str]:
-        """One text per topic whose readers are not all matched: how many, from whom, who is there."""
+        """One text per endpoint not yet matched (how many, from whom, who is there), then check()'s."""
         peers = set(plain(self.node.get_parameter("graph.peers").value)) \
             if self.node.has_parameter("graph.peers") else set()
         out = []
         for pub, n in self.waits:
-            count = pub.get_subscription_count()
-            if count >= n:
-                continue
             topic = pub.topic_name
+            count = pub.get_subscription_count()
+            readers = self.node.get_subscriptions_info_by_topic(topic)
+            if count >= max(n, len(readers)):
+                continue
             expected = [p for p in CONSUMERS.get(topic, ()) + ("recorder",) if p in peers]
-            there = sorted({i.node_name for i in self.node.get_subscriptions_info_by_topic(topic)})
-            out.append(f"{topic}: {count} of {n} readers (expected {', '.join(expected) or '?'}"
-                       + (f"; matched {', '.join(there)})" if there else ")"))
+            there = sorted({i.node_name for i in readers})
+            out.append(f"{topic}: {count} of {max(n, len(readers))} readers matched (expected "
+                       f"{', '.join(expected) or '-'}" + (f"; discovered {', '.join(there)})" if there else ")"))
+        for sub, n in self.reads:
+            count = sub.get_publisher_count()
+            if count < n:
+                out.append(f"{sub.topic_name}: {count} of {n} publishers matched "
+                           f"(expected {', '.join(p for p in PRODUCERS.get(sub.topic_name, ()) if p in peers) or '-'})")
+        if self.check is not None:
+            out.extend(self.check())
         return out
 
     def _poll(self) -> None:
@@ -256,19 +336,87 @@ class Readiness:
             if not self._said and waited >= 0.5:
                 self._said = True
                 self.node.get_logger().info(
-                    f"waiting up to {self.timeout_s:g} s (graph.startup_timeout_s) for the readers of "
-                    + "; ".join(missing))
+                    f"waiting up to {self.timeout_s:g} s (graph.startup_timeout_s) for " + "; ".join(missing))
             return
         self._timer.cancel()
         self.node.destroy_timer(self._timer)
+        self._timer = None
         if missing:
             self.node.get_logger().error(
-                f"giving up after {waited:.1f} s (graph.startup_timeout_s) without the readers of "
-                + "; ".join(missing) + " (start those nodes on this ROS_DOMAIN_ID, or set graph.peers)")
+                f"giving up after {waited:.1f} s (graph.startup_timeout_s): not ready: " + "; ".join(missing)
+                + " (start those nodes on this ROS_DOMAIN_ID, or set graph.peers)")
             self.node.exit_code = EXIT_NO_PEERS
             self.node.done.set_result(False)
             return
+        self.announce()
         self.on_ready()
+
+    def announce(self) -> None:
+        from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+
+        self.ready = True
+        values = {"reads": ",".join(s.topic_name for s, _ in self.reads),
+                  "writes": ",".join(p.topic_name for p, _ in self.waits)}
+        self.pub.publish(DiagnosticStatus(
+            level=DiagnosticStatus.OK, name=self.peer, message="ready",
+            hardware_id=self.node.get_fully_qualified_name(),
+            values=[KeyValue(key=k, value=v) for k, v in values.items()]))
+        self.node.get_logger().info("ready (announced on /graph/ready)")
+
+
+class PeerWatch:
+    """What the simulator waits for before the lockstep (README, "Start"): the /graph/ready
+    announcement of every peer of ``graph.peers``; a governor that does not announce itself
+    (today's contract) counts as ready once a node that has no /graph/ready publisher publishes
+    /tsg/time_shift and reads a state topic (its readers and publishers then being matched by the
+    checks of the simulator's own endpoints and the announcements of the controller and the
+    recorder, whose /tsg/time_shift subscriptions must be matched to it)."""
+
+    def __init__(self, node: Any, peers: Iterable[str], poke: Callable[[], None] = lambda: None) -> None:
+        from diagnostic_msgs.msg import DiagnosticStatus
+
+        self.node, self.poke = node, poke
+        self.peers = [p for p in peers if p != "sim"]
+        self.announced: dict[str, str] = {}
+        node.create_subscription(DiagnosticStatus, READY, self.on_ready, QOS_READY_READER)
+
+    def on_ready(self, msg: Any) -> None:
+        if msg.message == "ready" and msg.name not in self.announced:
+            self.announced[msg.name] = msg.hardware_id
+            self.node.get_logger().info(f"{msg.name} ready ({msg.hardware_id})")
+            self.poke()
+
+    def silent_governor(self) -> str | None:
+        """The node name of a governor that keeps today's contract without announcing itself and is
+        ready by the graph (see the class docstring), or None."""
+        def key(i: Any) -> str:
+            return f"{i.node_namespace.rstrip('/')}/{i.node_name}"
+
+        announcing = {key(i) for i in self.node.get_publishers_info_by_topic(READY)}
+        readers = {key(i) for t in (DEPUTY_ODOM, CHIEF_ODOM) for i in self.node.get_subscriptions_info_by_topic(t)}
+        for info in self.node.get_publishers_info_by_topic(TIME_SHIFT):
+            if key(info) not in announcing and key(info) in readers:
+                return key(info)
+        return None
+
+    def missing(self) -> list[str]:
+        out = []
+        for peer in self.peers:
+            if peer in self.announced:
+                continue
+            if peer == "governor":
+                name = self.silent_governor()
+                if name is not None:
+                    if name not in getattr(self, "_inferred", set()):
+                        self._inferred = {name}
+                        self.node.get_logger().info(f"governor {name} does not announce itself: ready by "
+                                                    "its matched /tsg/time_shift publisher and state subscription")
+                    continue
+                out.append("governor: no announcement on /graph/ready, and no other node both publishes "
+                           "/tsg/time_shift and reads /deputy/odom or /chief/odom")
+            else:
+                out.append(f"{peer}: no announcement on /graph/ready")
+        return out
 
 
 def _rcl_message(exc: BaseException) -> str:

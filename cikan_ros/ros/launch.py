@@ -282,4 +282,17 @@ def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | Non
     metrics["bag"] = str(bag_path)
     metrics["ros"] = {"launch_wall_s": wall, **metrics.get("ros", {}),
                       "exit_codes": {n: p.returncode for n, p in graph.procs.items()}}
+    return lockstep_verdict(metrics)
+
+
+def lockstep_verdict(metrics: dict[str, Any]) -> dict[str, Any]:
+    """``lockstep_deadlines``: wall-clock deadlines that fired in the lockstep run (the sim's
+    zero-thrust misses + the controller's holds). Each one made the physics depend on timing, so
+    a run with any is a failed run (``success`` False, ``cikan mission`` exits 1), whatever the
+    constraints say; the fault behaviour itself (hold, coast) stays what flew."""
+    ros = metrics.get("ros", {})
+    fired = int(ros.get("deadline_misses", 0)) + int(ros.get("controller_holds", 0))
+    metrics["lockstep_deadlines"] = fired
+    if fired:
+        metrics["success"] = False
     return metrics

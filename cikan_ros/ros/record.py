@@ -37,7 +37,7 @@ from .graph import (ACCEL_CMD, CHIEF_ODOM, DEPUTY_ODOM, DIAGNOSTICS, TIME_SHIFT,
 
 
 #: Integer values of the simulator's summary record.
-_COUNTS = ("k", "steps", "deadline_misses", "rejected")
+_COUNTS = ("k", "steps", "deadline_misses", "rejected", "controller_holds")
 
 
 def read_bag(path: str | Path) -> dict[str, list[tuple[int, Any]]]:
@@ -138,6 +138,8 @@ def mission_from_bag(path: str | Path, cfg: Config, governor: str) -> tuple[Miss
     if initial is None:
         raise CikanError(f"bag {path}: no time shift recorded on {TIME_SHIFT}")
     summary["missing_shifts"] = sum(1 for k in range(n - 1) if k not in shifts)
+    if held:   # the controller's wall-clock deadline fired: recorded beside the sim's misses
+        summary["controller_holds"] = len(held)
     x_d = np.array([deputy[k] for k in range(n)])
     x_c = np.array([chief[k] for k in range(n)])
     t = np.array([tl.seconds(tl.stamp_ns(k)) for k in range(n)])

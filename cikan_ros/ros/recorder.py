@@ -26,14 +26,15 @@ from rclpy.task import Future
 from . import convert as cv
 from ..errors import ConfigError
 from .bag import BagWriter, qos_dict
-from .graph import (GOVERNOR_INFO, QOS_LATCHED, QOS_RECORD, TOPIC_TYPES, declare_config, message_class,
-                    run_node)
+from .graph import (GOVERNOR_INFO, QOS_LATCHED, QOS_RECORD, TOPIC_TYPES, Readiness, declare_config,
+                    message_class, plain, required_publishers, run_node)
 from .graph_spec import UTC_FORMAT
 from .params import NodeSpec, declare_parameters
 
 NAME = "recorder_node"
-#: Parameters: the group recorder of config/nodes.yaml, and the mission configuration (for the bag).
-SPEC = NodeSpec(NAME, __doc__, ("recorder",))
+#: Parameters: the groups recorder and graph of config/nodes.yaml, and the mission configuration
+#: (for the bag).
+SPEC = NodeSpec(NAME, __doc__, ("recorder", "graph"))
 
 
 class RecorderNode(Node):
@@ -41,7 +42,9 @@ class RecorderNode(Node):
 
     def __init__(self) -> None:
         super().__init__(NAME)
+        self.readiness = Readiness(self, "recorder")   # first: the /graph/ready publisher
         p = declare_parameters(self, SPEC)
+        self.peers = [str(n) for n in plain(p["graph.peers"])]
         utc = datetime.now(timezone.utc).strftime(UTC_FORMAT)
         self.bag_dir = Path(str(p["recorder.bag"]).replace("{utc}", utc))
         self.topics = [str(t) for t in p["recorder.topics"]]
@@ -69,9 +72,10 @@ class RecorderNode(Node):
         """Create the bag and subscribe (called once the node's parameters are checked)."""
         self.bag = BagWriter(self.bag_dir, self.chunk_bytes,
                              {"cikan_ros.config": json.dumps(self.cfg.flat(), sort_keys=True)})
-        for topic in self.topics:
-            self.create_subscription(message_class(TOPIC_TYPES[topic]), topic,
-                                     lambda data, t=topic: self.on_message(t, data), QOS_RECORD, raw=True)
+        subs = [self.create_subscription(message_class(TOPIC_TYPES[topic]), topic,
+                                         lambda data, t=topic: self.on_message(t, data), QOS_RECORD, raw=True,
+                                         event_callbacks=self.readiness.subscription_events())
+                for topic in self.topics]
         self.create_subscription(DiagnosticStatus, GOVERNOR_INFO, self.on_governor, QOS_LATCHED)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(self.flush_period_s, self.bag.flush, clock=steady)
@@ -79,6 +83,10 @@ class RecorderNode(Node):
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, self.request_stop)
         self.get_logger().info(f"recording {len(self.topics)} topics to {self.bag_dir}")
+        # Ready (announced on /graph/ready) once each topic is matched to a publisher of a peer:
+        # the sim then starts; the recorder itself never gives up waiting.
+        self.readiness.start([], [(s, required_publishers(s.topic_name, self.peers)) for s in subs],
+                             float("inf"), lambda: None)
 
     def on_governor(self, msg: DiagnosticStatus) -> None:
         """The governor's announcement: into the bag's metadata (every governor that flew, in order)."""

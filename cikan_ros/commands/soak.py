@@ -1,0 +1,168 @@
+"""``cikan soak``: fly N ROS missions back to back and check every bag against the mission."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+from . import add_config_args, config_from_args, dumps, int_at_least, seed_arg
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("soak", help="fly N ROS missions back to back; check every bag for lost messages",
+                       description="Fly N lockstep ROS missions one after the other and check each bag "
+                                   "against its mission: every topic holds one message per step it "
+                                   "should, stamped t_0..t_K, none twice; no wall-clock deadline fired. "
+                                   "Prints a table; exit code 1 if any message is lost or a mission "
+                                   "failed.")
+    p.add_argument("--runs", type=int_at_least(1, "--runs"), default=10, metavar="N", help="missions to fly (default 10)")
+    p.add_argument("--load", action="store_true",
+                   help="keep every core busy (one busy-loop process per core) during the soak")
+    who = p.add_mutually_exclusive_group()
+    who.add_argument("--governor", default="conventional", metavar="NAME|PATH",
+                     help="governor of governor_node (default conventional)")
+    who.add_argument("--governor-exec", metavar='"CMD ARGS"', default=None,
+                     help="fly this executable in place of governor_node (as cikan mission)")
+    p.add_argument("--seed", type=seed_arg, default=None,
+                   help="Monte Carlo start of every run (default: the nominal start)")
+    p.add_argument("--out", metavar="DIR", default=None,
+                   help="keep the bags in DIR/run_NNN (default: a temporary directory, removed)")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    add_config_args(p)
+    p.set_defaults(func=run)
+
+
+def expected_stamps(n_steps: int) -> dict[str, int]:
+    """Topic -> number of steps it carries a message for: the states of t_0..t_K, one shift and
+    one command for each of t_0..t_{K-1}."""
+    from ..ros.graph import (ACCEL_CMD, CHIEF_ODOM, CLOCK, DEPUTY_ODOM, TIME_SHIFT, TRUTH_ACCEL,
+                             TRUTH_CHIEF, TRUTH_DEPUTY)
+
+    states = {t: n_steps + 1 for t in (CLOCK, CHIEF_ODOM, DEPUTY_ODOM, TRUTH_CHIEF, TRUTH_DEPUTY)}
+    return {**states, TIME_SHIFT: n_steps, ACCEL_CMD: n_steps, TRUTH_ACCEL: n_steps}
+
+
+def check_bag(bag: Path, cfg: Any) -> dict[str, int]:
+    """Lost, duplicated and off-grid messages of a recorded mission, per the mission's K steps
+    (``mission.duration_s`` / ``control.period_s``); the simulator's per-step records too."""
+    from ..ros.convert import MessageError, Timeline, diagnostic_values, time_to_ns
+    from ..ros.graph import DIAGNOSTICS
+    from ..ros.record import read_bag
+
+    n_steps = round(cfg.mission.duration_s / cfg.control.period_s)
+    tl = Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
+    msgs = read_bag(bag)
+    lost = dup = off = total = 0
+    where: dict[str, int] = {}
+    for topic, n in expected_stamps(n_steps).items():
+        ks = []
+        for log_time, m in msgs.get(topic, []):
+            stamp = time_to_ns(m.clock if topic == "/clock" else m.header.stamp)
+            try:
+                k = tl.step(stamp)
+            except MessageError:
+                off += 1
+                continue
+            off += log_time != stamp   # the recorder logs every message at its own stamp
+            ks.append(k)
+        total += len(ks)
+        missing = len(set(range(n)) - set(ks))
+        lost += missing
+        if missing:
+            where[topic] = missing
+        dup += len(ks) - len(set(ks))
+        off += sum(1 for k in ks if not 0 <= k < n)
+    steps = [int(diagnostic_values(s)["k"]) for _, arr in msgs.get(DIAGNOSTICS, []) for s in arr.status
+             if s.name == "sim_node" and diagnostic_values(s).get("event") == "step"]
+    missing = len(set(range(n_steps)) - set(steps))
+    lost += missing
+    if missing:
+        where["/diagnostics (sim steps)"] = missing
+    dup += len(steps) - len(set(steps))
+    total += sum(len(v) for t, v in msgs.items() if t not in expected_stamps(n_steps))
+    return {"steps": n_steps, "messages": total, "lost": lost, "duplicated": dup, "off_grid": off,
+            "lost_on": ", ".join(f"{t} {n}" for t, n in where.items())}
+
+
+def run(args: argparse.Namespace) -> int:
+    import shutil
+
+    from ..errors import CikanError
+    from ..ros.launch import run_ros_mission
+
+    cfg = config_from_args(args)
+    out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="cikan_soak_"))
+    out.mkdir(parents=True, exist_ok=True)
+    load = [subprocess.Popen([sys.executable, "-c", "while True: pass"], stdin=subprocess.DEVNULL)
+            for _ in range(os.cpu_count() or 1)] if args.load else []
+    rows: list[dict[str, Any]] = []
+    try:
+        for i in range(args.runs):
+            bag = out / f"run_{i:03d}"
+            t0 = time.perf_counter()
+            row: dict[str, Any] = {"run": i + 1}
+            try:
+                metrics = run_ros_mission(cfg, governor=args.governor, seed=args.seed, bag=bag,
+                                          governor_exec=args.governor_exec)
+                row.update(check_bag(bag, cfg), deadlines=metrics["lockstep_deadlines"],
+                           violations=metrics["violations"], rtf=metrics.get("ros", {}).get("rtf"))
+                row["ok"] = not (row["lost"] or row["duplicated"] or row["off_grid"] or row["deadlines"])
+                row["error"] = ""
+            except CikanError as exc:
+                row.update(ok=False, error=str(exc))
+            row["wall_s"] = time.perf_counter() - t0
+            rows.append(row)
+            if not args.json:
+                print(_line(row), flush=True)
+            if not args.out:
+                shutil.rmtree(bag, ignore_errors=True)
+    finally:
+        for p in load:
+            p.kill()
+            p.wait()
+        if not args.out:
+            shutil.rmtree(out, ignore_errors=True)
+    failed = [r for r in rows if not r["ok"]]
+    summary = {"runs": len(rows), "failed": len(failed),
+               "lost": sum(r.get("lost", 0) for r in rows),
+               "duplicated": sum(r.get("duplicated", 0) for r in rows),
+               "deadlines": sum(r.get("deadlines", 0) for r in rows),
+               "load": bool(args.load), "governor": args.governor_exec or args.governor}
+    if args.json:
+        print(dumps({**summary, "table": rows}))
+    else:
+        print(table(rows, summary))
+    return 1 if failed else 0
+
+
+def _line(row: dict[str, Any]) -> str:
+    if row.get("error"):
+        return f"run {row['run']}: FAILED: {row['error']}"
+    return (f"run {row['run']}: {row['messages']} messages, lost {row['lost']}, duplicated "
+            f"{row['duplicated']}, off grid {row['off_grid']}, deadlines {row['deadlines']}, "
+            f"{row['wall_s']:.1f} s wall" + (f" (lost on {row['lost_on']})" if row["lost_on"] else ""))
+
+
+def table(rows: list[dict[str, Any]], summary: dict[str, Any]) -> str:
+    """The soak as a Markdown table (one row per run) and a totals line."""
+    head = "| run | steps | messages | lost | duplicated | off grid | deadlines fired | violations | rtf | wall s | result |"
+    lines = [head, "|" + "---|" * 11]
+    for r in rows:
+        if r.get("error"):
+            lines.append(f"| {r['run']} | | | | | | | | | {r['wall_s']:.1f} | FAILED: {r['error'][:120]} |")
+            continue
+        rtf = "-" if r.get("rtf") is None else f"{r['rtf']:.0f}"
+        lines.append(f"| {r['run']} | {r['steps']} | {r['messages']} | {r['lost']} | {r['duplicated']} | "
+                     f"{r['off_grid']} | {r['deadlines']} | {r['violations']} | {rtf} | {r['wall_s']:.1f} | "
+                     f"{'ok' if r['ok'] else 'FAILED'}" + (f" (lost on {r['lost_on']})" if r["lost_on"] else "")
+                     + " |")
+    lines.append(f"\n{summary['runs']} runs ({summary['governor']}, load {'on' if summary['load'] else 'off'}): "
+                 f"{summary['failed']} failed, {summary['lost']} messages lost, {summary['duplicated']} "
+                 f"duplicated, {summary['deadlines']} deadlines fired")
+    return "\n".join(lines)
