@@ -145,6 +145,13 @@ def nav_terms(rp: NDArray, rng: float, vrel: float, ts: float) -> tuple[float, f
 
 
 @nb.njit(cache=True)
+def loop_takes_over(rp: NDArray, big_r: float, big_s: float) -> tuple[float, float]:
+    """The bounds (km, km/s) of a transient R, S held through a saturated phase, once the linear
+    loop takes it over: C0 (R, S), the loop's gain from an initial error (cikan_ros.robust)."""
+    return (rp[R_C0PP] * big_r + rp[R_C0PV] * big_s, rp[R_C0VP] * big_r + rp[R_C0VV] * big_s)
+
+
+@nb.njit(cache=True)
 def tube_step(rp: NDArray, u_max: float, ts: float, rng: float, vrel: float, rho: float,
               sig: float, big_r: float, big_s: float, linear: bool, a_n: float, un: float,
               grad: float) -> tuple[float, float, float, float, bool]:
@@ -181,8 +188,7 @@ def tube_step(rp: NDArray, u_max: float, ts: float, rng: float, vrel: float, rho
     offset_v = rp[R_GVP] * bp + rp[R_GVV] * bv
     if a_n - m < u_max:
         if not linear:  # R, S held the transient of the saturated phase: it now decays
-            big_r, big_s = (rp[R_C0PP] * big_r + rp[R_C0PV] * big_s,
-                            rp[R_C0VP] * big_r + rp[R_C0VV] * big_s)
+            big_r, big_s = loop_takes_over(rp, big_r, big_s)
         lam = rp[R_LAM]
         big_r = lam * big_r + rp[R_DPP] * dp + rp[R_DPV] * dv + rp[R_CPE] * eta
         big_s = lam * big_s + rp[R_DVP] * dp + rp[R_DVV] * dv + rp[R_CVE] * eta
@@ -223,8 +229,7 @@ def robust_terminal_ok(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, dp: f
     if un >= cp[C_UMAX]:
         return False
     if not linear:  # the saturated phase's transient, as the loop takes it over (tube_step)
-        big_r, big_s = (rp[R_C0PP] * big_r + rp[R_C0PV] * big_s,
-                        rp[R_C0VP] * big_r + rp[R_C0VV] * big_s)
+        big_r, big_s = loop_takes_over(rp, big_r, big_s)
     # The tube's radii bound the range and the relative speed of every future truth state; the
     # offset's and the forcing's bounds there make R_inf and the offsets bounds as well.
     rng = math.sqrt((xv[0] - xc[0]) ** 2 + (xv[1] - xc[1]) ** 2 + (xv[2] - xc[2]) ** 2)

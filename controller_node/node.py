@@ -58,17 +58,14 @@ class ControllerNode(Node):
         self.waiting: int | None = None   # step whose shift is awaited
         self.lost = False
         self.pending: dict[int, dict[str, Any]] = {}
-        self.pub_accel = self.create_publisher(AccelStamped, ACCEL_CMD, QOS_STREAM, event_callbacks=self.readiness.publisher_events())
-        self.pub_diag = self.create_publisher(DiagnosticArray, DIAGNOSTICS, qos_for(DIAGNOSTICS), event_callbacks=self.readiness.publisher_events())
+        self.pub_accel = self.readiness.publisher(AccelStamped, ACCEL_CMD, QOS_STREAM)
+        self.pub_diag = self.readiness.publisher(DiagnosticArray, DIAGNOSTICS, qos_for(DIAGNOSTICS))
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.deadline = self.create_timer(deadline, self.on_deadline, clock=steady, autostart=False)
         self.lost_deadline = self.create_timer(lost, self.on_deadline, clock=steady, autostart=False)
-        subs = [self.create_subscription(Odometry, DEPUTY_ODOM, self.on_deputy, QOS_STREAM,
-                                        event_callbacks=self.readiness.subscription_events()),
-                self.create_subscription(Odometry, CHIEF_ODOM, self.on_chief, QOS_STREAM,
-                                        event_callbacks=self.readiness.subscription_events()),
-                self.create_subscription(TimeReference, TIME_SHIFT, self.on_shift, QOS_STREAM,
-                                        event_callbacks=self.readiness.subscription_events())]
+        subs = [self.readiness.subscription(Odometry, DEPUTY_ODOM, self.on_deputy, QOS_STREAM),
+                self.readiness.subscription(Odometry, CHIEF_ODOM, self.on_chief, QOS_STREAM),
+                self.readiness.subscription(TimeReference, TIME_SHIFT, self.on_shift, QOS_STREAM)]
         waits = [(self.pub_accel, required_readers(ACCEL_CMD, peers)),
                  (self.pub_diag, required_readers(DIAGNOSTICS, peers))]
         # Ready once the sim's states and the governor's shift are matched (the sim waits for it):

@@ -56,12 +56,11 @@ class GovernorNode(Node):
         self.tau: float | None = None
         self.last_k = -1
         self.pending: dict[int, dict[str, Any]] = {}
-        self.pub_tau = self.create_publisher(TimeReference, TIME_SHIFT, QOS_STREAM, event_callbacks=self.readiness.publisher_events())
-        self.pub_diag = self.create_publisher(DiagnosticArray, DIAGNOSTICS, qos_for(DIAGNOSTICS), event_callbacks=self.readiness.publisher_events())
+        self.pub_tau = self.readiness.publisher(TimeReference, TIME_SHIFT, QOS_STREAM)
+        self.pub_diag = self.readiness.publisher(DiagnosticArray, DIAGNOSTICS, qos_for(DIAGNOSTICS))
         self.requested = name
         self.add_on_set_parameters_callback(self.on_parameters)
-        subs = [self.create_subscription(Odometry, t, lambda m, w=w: self.on_odom(w, m), QOS_STREAM,
-                                        event_callbacks=self.readiness.subscription_events())
+        subs = [self.readiness.subscription(Odometry, t, lambda m, w=w: self.on_odom(w, m), QOS_STREAM)
                 for t, w in ((CHIEF_ODOM, "chief"), (DEPUTY_ODOM, "deputy"))]
         waits = [(self.pub_tau, required_readers(TIME_SHIFT, peers)),
                  (self.pub_diag, required_readers(DIAGNOSTICS, peers))]

@@ -73,15 +73,14 @@ class SimNode(Node):
         self.latency_ms: list[float] = []
         self.latency_update_ms: list[float] = []
         self.done = Future()
-        self.pub_clock = self.create_publisher(ClockMsg, CLOCK, QOS_STREAM, event_callbacks=self.readiness.publisher_events())
-        self.pub_chief = self.create_publisher(Odometry, CHIEF_ODOM, QOS_STREAM, event_callbacks=self.readiness.publisher_events())
-        self.pub_deputy = self.create_publisher(Odometry, DEPUTY_ODOM, QOS_STREAM, event_callbacks=self.readiness.publisher_events())
-        self.pub_diag = self.create_publisher(DiagnosticArray, DIAGNOSTICS, qos_for(DIAGNOSTICS), event_callbacks=self.readiness.publisher_events())
-        self.pub_truth_chief = self.create_publisher(Odometry, TRUTH_CHIEF, QOS_STREAM, event_callbacks=self.readiness.publisher_events())
-        self.pub_truth_deputy = self.create_publisher(Odometry, TRUTH_DEPUTY, QOS_STREAM, event_callbacks=self.readiness.publisher_events())
-        self.pub_truth_accel = self.create_publisher(AccelStamped, TRUTH_ACCEL, QOS_STREAM, event_callbacks=self.readiness.publisher_events())
-        self.sub_accel = self.create_subscription(AccelStamped, ACCEL_CMD, self.on_accel, QOS_STREAM,
-                                        event_callbacks=self.readiness.subscription_events())
+        self.pub_clock = self.readiness.publisher(ClockMsg, CLOCK, QOS_STREAM)
+        self.pub_chief = self.readiness.publisher(Odometry, CHIEF_ODOM, QOS_STREAM)
+        self.pub_deputy = self.readiness.publisher(Odometry, DEPUTY_ODOM, QOS_STREAM)
+        self.pub_diag = self.readiness.publisher(DiagnosticArray, DIAGNOSTICS, qos_for(DIAGNOSTICS))
+        self.pub_truth_chief = self.readiness.publisher(Odometry, TRUTH_CHIEF, QOS_STREAM)
+        self.pub_truth_deputy = self.readiness.publisher(Odometry, TRUTH_DEPUTY, QOS_STREAM)
+        self.pub_truth_accel = self.readiness.publisher(AccelStamped, TRUTH_ACCEL, QOS_STREAM)
+        self.sub_accel = self.readiness.subscription(AccelStamped, ACCEL_CMD, self.on_accel, QOS_STREAM)
         self.steady = steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.deadline = self.create_timer(self.deadline_s, self.on_deadline, clock=steady, autostart=False)
         self.lost_deadline = self.create_timer(self.lost_deadline_s, self.on_deadline, clock=steady,

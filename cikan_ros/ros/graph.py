@@ -285,6 +285,16 @@ class Readiness:
 
         return SubscriptionEventCallbacks(matched=lambda _status: self.poke())
 
+    def publisher(self, msg_type: Any, topic: str, qos: Any) -> Any:
+        """``node.create_publisher`` with :meth:`publisher_events`: a publisher readiness watches."""
+        return self.node.create_publisher(msg_type, topic, qos, event_callbacks=self.publisher_events())
+
+    def subscription(self, msg_type: Any, topic: str, callback: Callable[[Any], None], qos: Any,
+                     **kwargs: Any) -> Any:
+        """``node.create_subscription`` with :meth:`subscription_events` (``kwargs``: e.g. raw)."""
+        return self.node.create_subscription(msg_type, topic, callback, qos,
+                                             event_callbacks=self.subscription_events(), **kwargs)
+
     def poke(self) -> None:
         """Re-check now (a matched event, an announcement): between polls of the timer."""
         done = getattr(self.node, "done", None)

@@ -72,9 +72,9 @@ class RecorderNode(Node):
         """Create the bag and subscribe (called once the node's parameters are checked)."""
         self.bag = BagWriter(self.bag_dir, self.chunk_bytes,
                              {"cikan_ros.config": json.dumps(self.cfg.flat(), sort_keys=True)})
-        subs = [self.create_subscription(message_class(TOPIC_TYPES[topic]), topic,
-                                         lambda data, t=topic: self.on_message(t, data), QOS_RECORD, raw=True,
-                                         event_callbacks=self.readiness.subscription_events())
+        subs = [self.readiness.subscription(message_class(TOPIC_TYPES[topic]), topic,
+                                            lambda data, t=topic: self.on_message(t, data), QOS_RECORD,
+                                            raw=True)
                 for topic in self.topics]
         self.create_subscription(DiagnosticStatus, GOVERNOR_INFO, self.on_governor, QOS_LATCHED)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
