@@ -168,11 +168,23 @@ class TSGConfig:
                self.zero_snap_s, "must be >= 0")
 
 
+#: Sides of the chief a deputy approaches from: "behind" (tau <= 0 rising to 0; the paper's)
+#: and "ahead" (tau >= 0 falling to 0). The docking port faces the approach: against the
+#: chief's velocity for "behind", along it for "ahead".
+APPROACHES = ("behind", "ahead")
+
+
+def approach_sign(approach: str) -> int:
+    """The sign of the time shifts of an approach: -1 behind (tau <= 0), +1 ahead (tau >= 0)."""
+    return -1 if approach == "behind" else 1
+
+
 @dataclass(frozen=True)
 class MissionConfig:
     """Closed-loop mission: duration, nominal start, Monte Carlo spread, plant, success test."""
 
     duration_s: float = 14400.0
+    approach: str = "behind"
     nominal_distance_km: float = 100.0
     mc_sigma_km: float = 10.0
     plant_substeps: int = 10
@@ -182,6 +194,8 @@ class MissionConfig:
     def __post_init__(self) -> None:
         for name in ("duration_s", "nominal_distance_km", "dock_distance_km", "dock_speed_kmps"):
             _positive(f"mission.{name}", getattr(self, name))
+        _check(self.approach in APPROACHES, "mission.approach", self.approach,
+               f"must be one of {APPROACHES} (the side of the chief the deputy starts on)")
         _check(math.isfinite(self.mc_sigma_km) and self.mc_sigma_km >= 0, "mission.mc_sigma_km",
                self.mc_sigma_km, "must be >= 0")
         _check(isinstance(self.plant_substeps, int) and 1 <= self.plant_substeps <= 10000,
@@ -297,6 +311,7 @@ class LearnedConfig:
     fallback_budget: int = 1
     probe_every: int = 3
     probe_budget: int = 2
+    foreign_model: bool = False
 
     def __post_init__(self) -> None:
         _check(self.algorithm in LEARNED_ALGORITHMS, "learned.algorithm", self.algorithm,
@@ -318,6 +333,23 @@ class LearnedConfig:
 
 
 @dataclass(frozen=True)
+class ScenarioConfig:
+    """Which mission this is: a name, one line saying what it is, and the directory of its
+    trained models (relative to the project root or an install's share/cikan_ros; a model of
+    family F for approach A is ``<models_dir>/F`` behind and ``<models_dir>/F-ahead`` ahead)."""
+
+    name: str = "paper"
+    description: str = "the paper's 12-h Molniya-like orbit (e = 0.74), deputy 100 km from the chief"
+    models_dir: str = "models"
+
+    def __post_init__(self) -> None:
+        _check(isinstance(self.name, str) and self.name.replace("-", "").replace("_", "").isalnum(),
+               "scenario.name", self.name, "must be a word (letters, digits, - and _)")
+        _check(isinstance(self.models_dir, str) and self.models_dir.strip() != "", "scenario.models_dir",
+               self.models_dir, "must name a directory")
+
+
+@dataclass(frozen=True)
 class Config:
     """All parameters of one mission; cross-group consistency is checked here."""
 
@@ -328,6 +360,12 @@ class Config:
     mission: MissionConfig = field(default_factory=MissionConfig)
     learned: LearnedConfig = field(default_factory=LearnedConfig)
     truth: TruthConfig = field(default_factory=TruthConfig)
+    scenario: ScenarioConfig = field(default_factory=ScenarioConfig)
+
+    @property
+    def side(self) -> int:
+        """Sign of this mission's time shifts: -1 behind (tau <= 0), +1 ahead (tau >= 0)."""
+        return approach_sign(self.mission.approach)
 
     def __post_init__(self) -> None:
         ratio = self.tsg.update_period_s / self.control.period_s
@@ -359,6 +397,7 @@ class Config:
 _GROUP_CLASSES = {
     "orbit": OrbitConfig, "control": ControlConfig, "constraints": ConstraintConfig,
     "tsg": TSGConfig, "mission": MissionConfig, "learned": LearnedConfig, "truth": TruthConfig,
+    "scenario": ScenarioConfig,
 }
 
 
@@ -446,19 +485,52 @@ def truth_overrides(name_or_path: str) -> dict[str, Any]:
     """``{"group.key": value}`` of a truth model: a shipped name (``nominal``, ``realistic``) or a
     params file with a ``truth`` group (and optionally the docking test, ``mission.dock_*``).
     ConfigError naming an unknown name, a missing file or a key a truth file may not set."""
-    p = Path(name_or_path)
-    if not (p.suffix in (".yaml", ".yml") or p.exists()):
-        shipped_file = TRUTH_DIR / f"{name_or_path}.yaml"
-        if not shipped_file.exists():
-            raise ConfigError(f"unknown truth model {name_or_path!r}: choose one of "
-                              f"{truth_names()} or give a YAML file")
-        p = shipped_file
+    p = _params_file(name_or_path, TRUTH_DIR, "truth model", truth_names())
     flat = read_params(p)
     bad = [k for k in flat if not k.startswith("truth.") and k not in TRUTH_FILE_EXTRA_KEYS]
     if bad:
         raise ConfigError(f"truth file {p} sets {bad[0]!r}: a truth file holds the truth group "
                           f"and {', '.join(TRUTH_FILE_EXTRA_KEYS)} only")
     flat.setdefault("truth.name", p.stem)
+    return flat
+
+
+#: Shipped scenarios: ``config/scenarios/<name>.yaml`` (docs/scenarios.md).
+SCENARIO_DIR = shipped("config/scenarios")
+
+
+def scenario_names() -> list[str]:
+    """Names of the shipped scenarios."""
+    return sorted(p.stem for p in SCENARIO_DIR.glob("*.yaml"))
+
+
+def _params_file(name_or_path: str, directory: Path, what: str, names: list[str]) -> Path:
+    """A shipped ``<directory>/<name>.yaml`` or a YAML file path; ConfigError naming an unknown name."""
+    p = Path(name_or_path)
+    if p.suffix in (".yaml", ".yml") or p.exists():
+        return p
+    shipped_file = directory / f"{name_or_path}.yaml"
+    if not shipped_file.exists():
+        raise ConfigError(f"unknown {what} {name_or_path!r}: choose one of {names} or give a YAML file")
+    return shipped_file
+
+
+def scenario_overrides(name_or_path: str) -> dict[str, Any]:
+    """``{"group.key": value}`` of a scenario: a shipped name (``paper``, ``leo``, ``geo``) or a
+    params file over config/cikan.yaml (orbit, control, constraints, tsg, mission, learned and
+    the ``scenario`` group; no ``truth``: the world flown is chosen apart, with ``--truth``).
+    Every key and value is checked here, so a bad file is refused with one line naming it."""
+    p = _params_file(name_or_path, SCENARIO_DIR, "scenario", scenario_names())
+    flat = read_params(p)
+    bad = [k for k in flat if k.startswith("truth.")]
+    if bad:
+        raise ConfigError(f"scenario file {p} sets {bad[0]!r}: a scenario does not choose the truth "
+                          f"(use --truth)")
+    flat.setdefault("scenario.name", p.stem)
+    try:
+        config_from_flat(flat)
+    except ConfigError as exc:
+        raise ConfigError(f"scenario file {p}: {exc}") from None
     return flat
 
 

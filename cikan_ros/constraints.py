@@ -1,8 +1,11 @@
 """Constraints of the rendezvous (SPEC §4); each h <= 0 is feasible, h > 0 a violation.
 
-- h1, line of sight: the deputy stays in the cone of half-angle alpha around -v_c (the docking
-  port points against the chief's velocity): h1 = v_c^T p_rel + cos(alpha) |v_c| |p_rel|.
-  (The paper prints the opposite sign; it contradicts its own docking-port statement.)
+- h1, line of sight: the deputy stays in the cone of half-angle alpha around the docking port's
+  axis. Approaching from behind (the paper's), the port points against the chief's velocity:
+  h1 = v_c^T p_rel + cos(alpha) |v_c| |p_rel| (the paper prints the opposite sign; it contradicts
+  its own docking-port statement). Approaching from ahead it points along v_c:
+  h1 = -v_c^T p_rel + cos(alpha) |v_c| |p_rel|. One kernel: h1 = a v_c^T p_rel + ..., with the
+  port sign a = -side (side = -1 behind, +1 ahead; ``mission.approach``).
 - h2, thrust: |u| - u_max.
 - h3, approach velocity, active when |p_rel| <= gamma1: h3 = |v_rel| - gamma2 |p_rel| - gamma3.
 
@@ -23,18 +26,22 @@ from numpy.typing import ArrayLike, NDArray
 from .config import ConstraintConfig
 
 # Layout of the packed constraint parameters used by compiled kernels.
-C_COS_ALPHA, C_APEX, C_GAMMA1, C_GAMMA2, C_GAMMA3, C_UMAX = range(6)
+C_COS_ALPHA, C_APEX, C_GAMMA1, C_GAMMA2, C_GAMMA3, C_UMAX, C_PORT = range(7)
 
 
-def constraint_params(cfg: ConstraintConfig, u_max: float) -> NDArray:
-    """Pack the constraint parameters for the kernels (layout ``C_*``)."""
+def constraint_params(cfg: ConstraintConfig, u_max: float, side: int = -1) -> NDArray:
+    """Pack the constraint parameters for the kernels (layout ``C_*``); ``side`` is the
+    approach's shift sign (-1 behind, +1 ahead), which points the docking port."""
+    if side not in (-1, 1):
+        raise ValueError(f"side must be -1 (behind) or +1 (ahead), got {side!r}")
     return np.array([math.cos(math.radians(cfg.los_half_angle_deg)), cfg.los_apex_radius_km,
-                     cfg.gamma1_km, cfg.gamma2_per_s, cfg.gamma3_kmps, u_max])
+                     cfg.gamma1_km, cfg.gamma2_per_s, cfg.gamma3_kmps, u_max, -float(side)])
 
 
 @nb.njit(cache=True, inline="always")
-def los_terms_kernel(x_d: NDArray, x_c: NDArray) -> tuple[float, float, float]:
-    """(v_c . p_rel, |p_rel|, |v_c|) of deputy x_d and chief x_c (6,): what h1 is made of."""
+def los_terms_kernel(x_d: NDArray, x_c: NDArray, port: float) -> tuple[float, float, float]:
+    """(port v_c . p_rel, |p_rel|, |v_c|) of deputy x_d and chief x_c (6,), port sign ``port``
+    (+1: the port faces -v_c, -1: +v_c): what h1 is made of."""
     dot = 0.0
     p2 = 0.0
     vc2 = 0.0
@@ -43,13 +50,13 @@ def los_terms_kernel(x_d: NDArray, x_c: NDArray) -> tuple[float, float, float]:
         dot += x_c[3 + i] * p
         p2 += p * p
         vc2 += x_c[3 + i] * x_c[3 + i]
-    return dot, math.sqrt(p2), math.sqrt(vc2)
+    return port * dot, math.sqrt(p2), math.sqrt(vc2)
 
 
 @nb.njit(cache=True)
 def h1_line_of_sight_kernel(x_d: NDArray, x_c: NDArray, cp: NDArray) -> float:
     """h1 (km^2/s) of deputy x_d and chief x_c (6,); NaN within the apex radius."""
-    dot, pn, vn = los_terms_kernel(x_d, x_c)
+    dot, pn, vn = los_terms_kernel(x_d, x_c, cp[C_PORT])
     if pn <= cp[C_APEX]:
         return math.nan
     return dot + cp[C_COS_ALPHA] * vn * pn
@@ -106,19 +113,21 @@ class Margins(NamedTuple):
     h3: NDArray             # km/s
 
 
-def margins(x_d: ArrayLike, x_c: ArrayLike, u: ArrayLike, cfg: ConstraintConfig, u_max: float) -> Margins:
-    """h1, normalised h1, h2, h3 for deputy states (N, 6), chief states (N, 6), accelerations (N, 3)."""
+def margins(x_d: ArrayLike, x_c: ArrayLike, u: ArrayLike, cfg: ConstraintConfig, u_max: float,
+            side: int = -1) -> Margins:
+    """h1, normalised h1, h2, h3 for deputy states (N, 6), chief states (N, 6), accelerations
+    (N, 3), approach side ``side`` (-1 behind, +1 ahead)."""
     x_d = np.ascontiguousarray(np.atleast_2d(x_d), dtype=float)
     x_c = np.ascontiguousarray(np.broadcast_to(np.atleast_2d(np.asarray(x_c, dtype=float)), x_d.shape))
     u = np.ascontiguousarray(np.broadcast_to(np.atleast_2d(np.asarray(u, dtype=float)), x_d.shape[:-1] + (3,)))
     out = np.empty((x_d.shape[0], 4))
-    margins_kernel(x_d, x_c, u, constraint_params(cfg, u_max), out)
+    margins_kernel(x_d, x_c, u, constraint_params(cfg, u_max, side), out)
     return Margins(*out.T.copy())
 
 
-def h1_line_of_sight(x_d: ArrayLike, x_c: ArrayLike, cfg: ConstraintConfig) -> NDArray:
-    """h1 (km^2/s) for states (N, 6); NaN within the apex radius."""
-    return margins(x_d, x_c, np.zeros(3), cfg, 1.0).h1
+def h1_line_of_sight(x_d: ArrayLike, x_c: ArrayLike, cfg: ConstraintConfig, side: int = -1) -> NDArray:
+    """h1 (km^2/s) for states (N, 6), approach side ``side``; NaN within the apex radius."""
+    return margins(x_d, x_c, np.zeros(3), cfg, 1.0, side).h1
 
 
 def h3_approach_velocity(x_d: ArrayLike, x_c: ArrayLike, cfg: ConstraintConfig) -> NDArray:

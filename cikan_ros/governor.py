@@ -1,6 +1,6 @@
 """The Governor interface and the conventional (optimal) Time Shift Governor.
 
-A governor answers, at update time t_k, the time shift tau_k <= 0 for the deputy state x_d and
+A governor answers, at update time t_k, the time shift tau_k (<= 0 behind the chief, >= 0 ahead) for the deputy state x_d and
 chief state x_c, given the previous shift tau_{k-1}; with the answer comes a record of what it did.
 The learned governor (Algorithm 1, ``cikan_ros.learn``) implements the same protocol.
 """
@@ -70,7 +70,8 @@ class UpdateRecord:
 
     @property
     def active(self) -> bool:
-        return self.tau_prev < 0.0
+        """The update searched (a previous shift away from 0, on either side of the chief)."""
+        return self.tau_prev != 0.0 and not math.isnan(self.tau_prev)
 
 
 @runtime_checkable
@@ -86,7 +87,8 @@ class Governor(Protocol):
         ...
 
     def update(self, x_d: ArrayLike, x_c: ArrayLike, t: float, tau_prev: float) -> UpdateRecord:
-        """Shift at update time t (s since epoch) with previous shift tau_prev <= 0 (s)."""
+        """Shift at update time t (s since epoch) with previous shift tau_prev (s; <= 0 behind
+        the chief, >= 0 ahead of it)."""
         ...
 
 
@@ -158,9 +160,9 @@ def warm_up(governor: Governor, x_d: ArrayLike, x_c: ArrayLike, t: float = 0.0) 
     objects made later are scanned."""
     pred = governor.predictor
     try:
-        tau0 = min(governor.initial(x_d, x_c, t).tau_s, -pred.config.tsg.tolerance_s)
+        tau0 = pred.side * max(abs(governor.initial(x_d, x_c, t).tau_s), pred.config.tsg.tolerance_s)
     except NoFeasibleShiftError:  # robust Verify may refuse this state: the kernels compiled anyway
-        tau0 = -10.0
+        tau0 = pred.side * 10.0
     governor.anchor.current = pred  # the warm-up's anchoring is not part of any mission
     t1 = t + pred.config.tsg.update_period_s
     # Every kernel entry point a decision may take (the update itself may take only one path).

@@ -31,20 +31,22 @@ MAX_DRAWS = 1000
 
 
 def nominal_shift(predictor: Predictor) -> float:
-    """tau_nom < 0: the chief orbit point at straight-line distance D behind the chief at t = 0."""
+    """tau_nom: the chief orbit point at straight-line distance D from the chief at t = 0, behind
+    it (tau_nom < 0) or ahead of it (tau_nom > 0) as ``mission.approach`` says."""
     orbit = predictor.orbit
     dist = predictor.config.mission.nominal_distance_km
+    side = predictor.side
     p0 = orbit.state(0.0)[:3]
 
     def gap(tau: float) -> float:
         return float(np.linalg.norm(orbit.state(tau)[:3] - p0)) - dist
 
-    lo = -dist / float(np.linalg.norm(orbit.state(0.0)[3:]))
-    while gap(lo) < 0.0:
-        lo *= 2.0
-        if -lo > orbit.period / 2:
+    far = side * dist / float(np.linalg.norm(orbit.state(0.0)[3:]))
+    while gap(far) < 0.0:
+        far *= 2.0
+        if abs(far) > orbit.period / 2:
             raise StateError(f"mission.nominal_distance_km = {dist} is too large for the chief orbit")
-    return float(brentq(gap, lo, 0.0, xtol=1e-13, rtol=1e-15))
+    return float(brentq(gap, min(far, 0.0), max(far, 0.0), xtol=1e-13, rtol=1e-15))
 
 
 def nominal_start(predictor: Predictor) -> NDArray:
@@ -68,7 +70,7 @@ def sample_start(predictor: Predictor, seed: int, sigma_km: float | None = None)
     for _ in range(MAX_DRAWS):
         x = x_nom.copy()
         x[:3] += rng.normal(0.0, sigma, 3)
-        m = margins(x, x_c0, np.zeros(3), cfg.constraints, cfg.control.u_max_kmps2)
+        m = margins(x, x_c0, np.zeros(3), cfg.constraints, cfg.control.u_max_kmps2, cfg.side)
         if not m.h1[0] <= 0.0:
             continue
         try:
@@ -251,7 +253,7 @@ class MissionResult:
 @dataclass(frozen=True)
 class UpdateState:
     """One update: index k, time t (s since epoch), x_d, x_c (km, km/s, as the governor saw them,
-    through SI), the previous shift tau_prev and the answer tau (s). Active when tau_prev < 0."""
+    through SI), the previous shift tau_prev and the answer tau (s). Active when tau_prev != 0."""
 
     k: int
     t: float
@@ -262,7 +264,7 @@ class UpdateState:
 
     @property
     def active(self) -> bool:
-        return self.tau_prev < 0.0
+        return self.tau_prev != 0.0 and not math.isnan(self.tau_prev)
 
 
 def update_states(cfg: Config, t: NDArray, x_d: NDArray, x_c: NDArray,
@@ -273,7 +275,7 @@ def update_states(cfg: Config, t: NDArray, x_d: NDArray, x_c: NDArray,
     per_update = round(cfg.tsg.update_period_s / cfg.control.period_s)
     out = []
     for k, tau_prev, tau in updates:
-        if active_only and not tau_prev < 0.0:
+        if active_only and not (tau_prev != 0.0 and not math.isnan(tau_prev)):
             continue
         step = int(k) * per_update
         out.append(UpdateState(int(k), float(t[step]), through_si(x_d[step]), through_si(x_c[step]),
@@ -328,7 +330,7 @@ def audit_shifts(predictor: Predictor, x_d: NDArray, tau: NDArray, x_c: NDArray 
         off_schedule += changed and not due
         t = loop.time(k)
         pred = predictor if x_c is None else anchor(x_c[k], t)
-        ok = (not changed and prev_ok) or (tau[k] <= 0.0 and pred.verify(x_d[k], t, float(tau[k])))
+        ok = (not changed and prev_ok) or (pred.side * tau[k] >= 0.0 and pred.verify(x_d[k], t, float(tau[k])))
         unverified += not ok
         prev, prev_ok = float(tau[k]), ok
     return ShiftAudit(int(unverified), int(off_schedule), int(decisions))
@@ -382,7 +384,7 @@ def run_mission(governor: Governor, x_d0: NDArray, seed: int | None = None,
     seen_d[-1] = truth.measure_deputy(n_steps, x)[0]
     seen_c[-1] = truth.measure_chief(n_steps)
     limit = cfg.control.u_max_kmps2 * cfg.truth.max_thrust_factor
-    m = margins(x_d, x_c, u, cfg.constraints, limit)
+    m = margins(x_d, x_c, u, cfg.constraints, limit, cfg.side)
     m.h2[-1] = math.nan  # no command is applied at the final instant
     nominal = truth.nominal
     return MissionResult(cfg, governor.name, t, x_d, x_c, u, taus, m, first, np.array(update_t),

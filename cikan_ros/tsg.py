@@ -38,7 +38,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .config import Config, control_config, prediction_gravity
-from .constraints import (C_APEX, C_COS_ALPHA, C_GAMMA1, C_GAMMA2, C_GAMMA3, C_UMAX, constraint_params,
+from .constraints import (C_APEX, C_COS_ALPHA, C_GAMMA1, C_GAMMA2, C_GAMMA3, C_PORT, C_UMAX, constraint_params,
                           los_terms_kernel, rel_norms_kernel, h1_line_of_sight_kernel, h2_thrust_kernel,
                           h3_approach_velocity_kernel)
 from .control import ftre_control_kernel, gain_table
@@ -111,8 +111,9 @@ def verify_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: ND
 def robust_h1_ok(x: NDArray, xc: NDArray, cp: NDArray, sin_a: float, rho: float) -> bool:
     """Every position within rho (km) of x lies in the LoS cone or inside the apex radius:
     the distance of p = x - x_c to the cone's surface, |p| sin(alpha - theta), is >= rho
-    (theta: angle between p and -v_c); positions within apex - rho need no check."""
-    dot, pn, vn = los_terms_kernel(x, xc)
+    (theta: angle between p and the port's axis, -v_c behind, +v_c ahead); positions within
+    apex - rho need no check."""
+    dot, pn, vn = los_terms_kernel(x, xc, cp[C_PORT])
     if pn <= cp[C_APEX] - rho:
         return True
     if pn == 0.0:
@@ -395,17 +396,23 @@ class ChiefTable:
 def bisect_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: NDArray, x0: NDArray, t_k: float,
                   lo_ns: int, hi_ns: int, tol_ns: int, chief: NDArray, chief_t0: float,
                   max_calls: int) -> tuple[int, int, int]:
-    """Bisection on [lo, hi] (integer ns) with lo feasible (not re-verified) and hi infeasible.
+    """Bisection between lo feasible (not re-verified) and hi infeasible (integer ns), on either
+    side of 0: lo < hi behind the chief (tau <= 0), lo > hi ahead of it (tau >= 0). "lo" is the
+    verified end, the one farther from 0.
 
     Returns (lo, hi, Verify calls) at the end: the answer lo is feasible and within ``tol_ns`` of
     the infeasible hi, or, when ``max_calls`` (>= 0; -1: no limit) Verify calls ran out first,
-    the verified lower end reached so far (the bracket is then wider than the tolerance).
+    the verified end reached so far (the bracket is then wider than the tolerance).
     Shifts are whole nanoseconds (the resolution of ROS time stamps), so a verified shift crosses
-    the ROS boundary exactly: tau_s = tau_ns / 1e9 on both sides.
+    the ROS boundary exactly: tau_s = tau_ns / 1e9 on both sides. The midpoint rounds toward lo,
+    so the ahead bisection is the behind one mirrored, nanosecond for nanosecond.
     """
     calls = 0
-    while hi_ns - lo_ns > tol_ns and calls != max_calls:
-        mid = (lo_ns + hi_ns) // 2
+    while abs(hi_ns - lo_ns) > tol_ns and calls != max_calls:
+        if hi_ns > lo_ns:
+            mid = lo_ns + (hi_ns - lo_ns) // 2
+        else:
+            mid = lo_ns - (lo_ns - hi_ns) // 2
         calls += 1
         if verify_kernel(orb, table, cp, tp, rp, x0, t_k, mid / 1e9, chief, chief_t0):
             lo_ns = mid
@@ -439,7 +446,8 @@ def first_feasible_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray
 def conventional_update_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: NDArray, x0: NDArray,
                                t_k: float, tau_prev_ns: int, tol_ns: int, chief: NDArray,
                                chief_t0: float) -> tuple[int, int]:
-    """pi* over [tau_prev, 0] (tau_prev < 0, ns): zero test first, then bisection. (tau_ns, calls)."""
+    """pi* between tau_prev (!= 0, ns, either sign) and 0: zero test first, then bisection.
+    (tau_ns, calls)."""
     if verify_kernel(orb, table, cp, tp, rp, x0, t_k, 0.0, chief, chief_t0):
         return 0, 1
     tau, _, calls = bisect_kernel(orb, table, cp, tp, rp, x0, t_k, tau_prev_ns, 0, tol_ns, chief, chief_t0, -1)
@@ -449,10 +457,12 @@ def conventional_update_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: ND
 @nb.njit(cache=True)
 def initial_search_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: NDArray, x0: NDArray,
                           t0: float, window_ns: int, grid_ns: int, tol_ns: int, chief: NDArray,
-                          chief_t0: float) -> tuple[int, int, bool]:
+                          chief_t0: float, side: int) -> tuple[int, int, bool]:
     """First-instant search (SPEC §5), times in integer ns. Returns (tau_ns, Verify calls, found).
 
-    tau_near = the grid point of [-window, 0] nearest to the deputy's position; walk the grid from
+    The grid is tau = side * m * grid, m = 0 .. window / grid (side -1: [-window, 0], behind the
+    chief; +1: [0, window], ahead of it). tau_near = the grid point nearest to the deputy's
+    position; walk the grid from
     it toward 0 while feasible (or away from 0 until feasible; if none is, from tau_near toward 0
     until feasible and on while feasible), then bisect between the two adjacent grid points, the
     feasible one being the verified lower end.
@@ -461,18 +471,18 @@ def initial_search_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray
     xc = np.empty(6)
     best = 0
     best_d2 = math.inf
-    for m in range(n_grid + 1):  # tau = -m * grid, m = 0 .. n_grid
-        state_kernel(orb, t0 - m * grid_ns / 1e9, xc)
+    for m in range(n_grid + 1):  # tau = side * m * grid, m = 0 .. n_grid
+        state_kernel(orb, t0 + side * m * grid_ns / 1e9, xc)
         d2 = (xc[0] - x0[0]) ** 2 + (xc[1] - x0[1]) ** 2 + (xc[2] - x0[2]) ** 2
         if d2 < best_d2:
             best_d2 = d2
             best = m
     calls = 1
     m = best
-    if verify_kernel(orb, table, cp, tp, rp, x0, t0, -m * grid_ns / 1e9, chief, chief_t0):
+    if verify_kernel(orb, table, cp, tp, rp, x0, t0, side * m * grid_ns / 1e9, chief, chief_t0):
         while m > 0:  # walk toward 0 while feasible
             calls += 1
-            if not verify_kernel(orb, table, cp, tp, rp, x0, t0, -(m - 1) * grid_ns / 1e9, chief, chief_t0):
+            if not verify_kernel(orb, table, cp, tp, rp, x0, t0, side * (m - 1) * grid_ns / 1e9, chief, chief_t0):
                 break
             m -= 1
         if m == 0:
@@ -482,7 +492,7 @@ def initial_search_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray
         while m < n_grid:  # walk away from 0 until feasible
             m += 1
             calls += 1
-            if verify_kernel(orb, table, cp, tp, rp, x0, t0, -m * grid_ns / 1e9, chief, chief_t0):
+            if verify_kernel(orb, table, cp, tp, rp, x0, t0, side * m * grid_ns / 1e9, chief, chief_t0):
                 found = True
                 break
         if not found:
@@ -492,20 +502,20 @@ def initial_search_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray
             while m > 0:
                 m -= 1
                 calls += 1
-                if verify_kernel(orb, table, cp, tp, rp, x0, t0, -m * grid_ns / 1e9, chief, chief_t0):
+                if verify_kernel(orb, table, cp, tp, rp, x0, t0, side * m * grid_ns / 1e9, chief, chief_t0):
                     found = True
                     break
             if not found:
                 return 0, calls, False
             while m > 0:
                 calls += 1
-                if not verify_kernel(orb, table, cp, tp, rp, x0, t0, -(m - 1) * grid_ns / 1e9,
+                if not verify_kernel(orb, table, cp, tp, rp, x0, t0, side * (m - 1) * grid_ns / 1e9,
                                      chief, chief_t0):
                     break
                 m -= 1
             if m == 0:
                 return 0, calls, True
-    tau, _, c = bisect_kernel(orb, table, cp, tp, rp, x0, t0, -m * grid_ns, -(m - 1) * grid_ns, tol_ns,
+    tau, _, c = bisect_kernel(orb, table, cp, tp, rp, x0, t0, side * m * grid_ns, side * (m - 1) * grid_ns, tol_ns,
                              chief, chief_t0, -1)
     return tau, calls + c, True
 
@@ -533,7 +543,7 @@ class Predictor:
                        cfg.tsg.terminal_pos_km, cfg.tsg.terminal_vel_kmps,
                        j2_coefficient(prediction_gravity(cfg))], dtype=float)
         return cls(cfg, orbit, gain_table(orbit, control_config(cfg)),
-                   constraint_params(cfg.constraints, cfg.control.u_max_kmps2), tp,
+                   constraint_params(cfg.constraints, cfg.control.u_max_kmps2, cfg.side), tp,
                    robust_params(cfg, orbit))
 
     def nominal(self) -> "Predictor":
@@ -552,6 +562,11 @@ class Predictor:
         object.__setattr__(new, "orbit", orbit)
         new.__post_init__()
         return new
+
+    @property
+    def side(self) -> int:
+        """Sign of the shifts: -1 behind the chief (tau <= 0), +1 ahead (tau >= 0)."""
+        return -1 if self.cparams[C_PORT] > 0.0 else 1
 
     @property
     def tol_ns(self) -> int:
@@ -580,10 +595,11 @@ class Predictor:
             raise StateError(f"time t must be finite, got {t!r}")
         return x, float(t)
 
-    @staticmethod
-    def _shift(tau: float, name: str) -> float:
-        if not (math.isfinite(tau) and tau <= 0.0):
-            raise StateError(f"time shift {name} must be finite and <= 0 s, got {tau!r}")
+    def _shift(self, tau: float, name: str) -> float:
+        if not (math.isfinite(tau) and self.side * tau >= 0.0):
+            bound = "<= 0 s (the deputy approaches from behind)" if self.side < 0 else \
+                ">= 0 s (the deputy approaches from ahead)"
+            raise StateError(f"time shift {name} must be finite and {bound}, got {tau!r}")
         return float(tau)
 
     def __post_init__(self) -> None:
@@ -625,25 +641,27 @@ class Predictor:
 
     def bisect(self, x_d: ArrayLike, t: float, lo: float, hi: float,
                cache: ChiefCache | None = None, budget: int | None = None) -> tuple[float, int]:
-        """Bisection between a feasible ``lo`` (not re-verified) and an infeasible ``hi`` (s).
+        """Bisection between a feasible ``lo`` (not re-verified) and an infeasible ``hi`` (s),
+        ``hi`` between ``lo`` and 0 (either side of the chief).
 
         Returns (tau, Verify calls): tau is feasible and within the tolerance of an infeasible shift,
-        or with a ``budget`` of Verify calls that ran out, the verified lower end reached (>= lo).
+        or with a ``budget`` of Verify calls that ran out, the verified end reached (between lo and hi).
         """
         lo_s, _, calls = self.bisect_bracket(x_d, t, lo, hi, cache, budget)
         return lo_s, calls
 
     def first_feasible(self, x_d: ArrayLike, t: float, candidates: Sequence[float], lo: float,
                        budget: int, cache: ChiefCache | None = None) -> tuple[float, int, int]:
-        """The first of ``candidates`` (s, each in [lo, 0], on the nanosecond grid) that passes
-        Verify, else the verified lower end of a bisection on [lo, last candidate] with at most
-        ``budget`` calls (lo itself with 0): (tau, index of the candidate or -1, Verify calls)."""
+        """The first of ``candidates`` (s, each between lo and 0, on the nanosecond grid) that
+        passes Verify, else the verified end of a bisection between lo and the last candidate
+        with at most ``budget`` calls (lo itself with 0): (tau, index of the candidate or -1,
+        Verify calls)."""
         x, t = self._state(x_d, t)
         lo = self._shift(lo, "lo")
         ns = [to_ns(self._shift(c, "candidate")) for c in candidates]
         lo_ns = to_ns(lo)
-        if ns and min(ns) < lo_ns:
-            raise StateError(f"candidates must be >= lo = {lo} s")
+        if ns and max(self.side * n for n in ns) > self.side * lo_ns:
+            raise StateError(f"candidates must lie between lo = {lo} s and 0")
         cands = np.array(ns, dtype=np.int64)
         c = self._cache(t, cache)
         tau_ns, index, calls = first_feasible_kernel(
@@ -657,8 +675,8 @@ class Predictor:
         """Like :meth:`bisect`, returning the final bracket (feasible lo, infeasible hi, calls)."""
         x, t = self._state(x_d, t)
         lo, hi = self._shift(lo, "lo"), self._shift(hi, "hi")
-        if lo > hi:
-            raise StateError(f"bisection bracket is empty: lo = {lo} > hi = {hi}")
+        if self.side * lo < self.side * hi:
+            raise StateError(f"bisection bracket is empty: hi = {hi} is farther from 0 than lo = {lo}")
         c = self._cache(t, cache)
         lo_ns, hi_ns, calls = bisect_kernel(self.orbit.params, self.gains, self.cparams, self.tparams,
                                             self.rparams, x, t, to_ns(lo), to_ns(hi), self.tol_ns, c.rows, c.t0,
@@ -666,7 +684,7 @@ class Predictor:
         return ns_to_seconds(lo_ns), ns_to_seconds(hi_ns), int(calls)
 
     def optimal_shift(self, x_d: ArrayLike, t: float, tau_prev: float) -> tuple[float, int]:
-        """pi*(x_d, t) over [tau_prev, 0]: (tau, Verify calls). tau_prev = 0 gives 0 with no prediction."""
+        """pi*(x_d, t) between tau_prev and 0: (tau, Verify calls). tau_prev = 0 gives 0 with no prediction."""
         x, t = self._state(x_d, t)
         tau_prev = self._shift(tau_prev, "tau_prev")
         if tau_prev == 0.0:
@@ -678,19 +696,22 @@ class Predictor:
         return ns_to_seconds(tau), int(calls)
 
     def initial_shift(self, x_d: ArrayLike, t: float) -> tuple[float, int]:
-        """First-instant search over [-window, 0]; raises NoFeasibleShiftError if none is feasible."""
+        """First-instant search over [-window, 0] (behind) or [0, window] (ahead); raises
+        NoFeasibleShiftError if none is feasible."""
         x, t = self._state(x_d, t)
         cfg = self.config.tsg
         c = self.cache(t)
         tau, calls, found = initial_search_kernel(self.orbit.params, self.gains, self.cparams,
                                                   self.tparams, self.rparams, x, t, to_ns(cfg.initial_window_s),
-                                                  to_ns(cfg.initial_grid_s), self.tol_ns, c.rows, c.t0)
+                                                  to_ns(cfg.initial_grid_s), self.tol_ns, c.rows, c.t0,
+                                                  self.side)
         if not found:
             truth = self.config.truth
             under = (f" under robust Verify with the bounds of truth {truth.name!r} x {truth.scale:g}"
                      if self.rparams[R_ON] else "")
+            window = f"[-{cfg.initial_window_s:g}, 0]" if self.side < 0 else f"[0, {cfg.initial_window_s:g}]"
             raise NoFeasibleShiftError(
-                f"no feasible time shift in [-{cfg.initial_window_s:g}, 0] s for this initial "
+                f"no feasible time shift in {window} s for this initial "
                 f"condition (deputy at {np.array2string(x[:3], precision=3)} km, t = {t:g} s)"
                 f"{under}: the start is rejected")
         return ns_to_seconds(tau), int(calls)

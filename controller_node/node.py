@@ -104,7 +104,7 @@ class ControllerNode(Node):
 
     def on_shift(self, msg: TimeReference) -> None:
         try:
-            stamp, tau, source = cv.shift_from_msg(msg)
+            stamp, tau, source = cv.shift_from_msg(msg, self.cfg.side)
             self.timeline.step(stamp)
         except cv.MessageError as exc:
             self.reject(f"time shift rejected: {exc}", cv.time_to_ns(msg.header.stamp))

@@ -248,7 +248,7 @@ def test_first_feasible_equals_verify_in_order_then_the_budgeted_bisection(predi
                     lo, c = predictor.bisect(x_d, t, tau_prev, cands[-1], budget=budget)
                     assert (tau, index, calls) == (lo, -1, len(cands) + c)
     assert predictor.first_feasible(x_d, t, [], tau_prev, 3) == (tau_prev, -1, 0)
-    with pytest.raises(StateError, match="candidates must be >= lo"):
+    with pytest.raises(StateError, match="candidates must lie between lo"):
         predictor.first_feasible(x_d, t, [tau_prev - 1.0], tau_prev, 1)
 
 

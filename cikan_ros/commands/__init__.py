@@ -34,6 +34,9 @@ def add_config_args(parser: argparse.ArgumentParser) -> None:
     """``--config PATH`` and repeatable ``--set group.key=value`` (YAML value)."""
     parser.add_argument("--config", metavar="PATH", default=None,
                         help="ROS 2 params YAML file (default: the shipped config/cikan.yaml)")
+    parser.add_argument("--scenario", metavar="NAME|FILE", default=None,
+                        help="mission scenario: paper (default), leo, geo, or a YAML file over the "
+                             "configuration (config/scenarios/; docs/scenarios.md)")
     parser.add_argument("--truth", metavar="NAME|FILE", default=None,
                         help="truth model the simulator flies: nominal (default), realistic, or a "
                              "YAML file with a truth group (config/truth/); docs/robustness.md")
@@ -46,11 +49,13 @@ def add_config_args(parser: argparse.ArgumentParser) -> None:
 
 
 def config_from_args(args: argparse.Namespace) -> Config:
-    """The configuration named by ``--config`` with ``--truth``, ``--robust`` and then the
-    ``--set`` overrides applied."""
-    from ..config import load_config, truth_overrides
+    """The configuration named by ``--config`` with ``--scenario``, ``--truth``, ``--robust`` and
+    then the ``--set`` overrides applied."""
+    from ..config import load_config, scenario_overrides, truth_overrides
 
     overrides: dict[str, Any] = {}
+    if getattr(args, "scenario", None) is not None:
+        overrides.update(scenario_overrides(args.scenario))
     if getattr(args, "truth", None) is not None:
         overrides.update(truth_overrides(args.truth))
     if getattr(args, "robust", False):

@@ -78,7 +78,7 @@ def loss_breakdown(models: list[LoadedModel | tuple[str, str]], data_path: str |
     part = df[df["split"] == split]
     tau = part["tau_star_s"].to_numpy(dtype=float)
     prev = part["tau_prev_s"].to_numpy(dtype=float)
-    y = np.log(-tau)
+    y = np.log(np.abs(tau))
     groups: list[tuple[str, np.ndarray]] = [("all", np.ones(len(y), bool))]
     groups += [(f"\\|τ*\\| in [{lo:g}, {hi:g}) s", (-tau >= lo) & (-tau < hi)) for lo, hi in BANDS]
     hold = (tau - prev) <= HOLD_S

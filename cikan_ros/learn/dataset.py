@@ -1,11 +1,12 @@
-"""Labelled data for the learned governor (SPEC §7): (x_d, x_c, t) -> tau* < 0 from closed loops
+"""Labelled data for the learned governor (SPEC §7): (x_d, x_c, t) -> tau* != 0 from closed loops
 of the conventional TSG started from the widened Monte Carlo distribution.
 
 Mission ``m`` of a dataset with seed ``S`` draws everything from ``numpy.random.default_rng([S, m])``:
 its position spread sigma ~ U[sigma_min, sigma_max] km, its split (train/val/test by a uniform
 draw against the split fractions) and the seed of its start (``mission.sample_start``). Each
 mission is one conventional closed loop (``mission.run_mission``); every active update
-(tau_{k-1} < 0) whose answer tau* = pi*(x) is strictly negative gives one label, with the states
+(tau_{k-1} != 0) whose answer tau* = pi*(x) is not 0 gives one label (tau* < 0 behind the chief,
+> 0 ahead of it; the file records its scenario and approach), with the states
 as the governor saw them (through SI, ``MissionResult.update_states``). The dataset is
 the labels of missions 0, 1, 2, ... in order, cut at exactly N labels, so the result depends on
 the seed only: not on the number of workers nor on where they run (local processes or Dask).
@@ -80,7 +81,7 @@ def mission_plan(spec: DatasetSpec, mission: int) -> tuple[float, str, int]:
 
 
 def update_labels(res: MissionResult, predictor: Predictor | None = None) -> dict[str, NDArray]:
-    """Labels of one mission: every active update (tau_{k-1} < 0) with tau* < 0.
+    """Labels of one mission: every active update (tau_{k-1} != 0) with tau* != 0.
 
     States are those the governor was given (through SI; ``MissionResult.update_states``, as the
     benchmark takes them). Without ``predictor`` the mission is the conventional TSG's and tau* is
@@ -90,7 +91,7 @@ def update_labels(res: MissionResult, predictor: Predictor | None = None) -> dic
     states = res.update_states()
     stars = [s.tau if predictor is None else predictor.optimal_shift(s.x_d, s.t, s.tau_prev)[0]
              for s in states]
-    keep = [(s, star) for s, star in zip(states, stars) if star < 0.0]
+    keep = [(s, star) for s, star in zip(states, stars) if star != 0.0]
     n = len(keep)
     return {
         "t_s": np.array([s.t for s, _ in keep], dtype=float),
@@ -202,6 +203,8 @@ def generate(cfg: Config, n_labels: int, spec: DatasetSpec, workers: int = 1,
     meta = {
         "recipe": RECIPE,
         "governor": governor,
+        "scenario": cfg.scenario.name,
+        "approach": cfg.mission.approach,
         "labels": int(len(df)),
         "missions": n_missions,
         "seed": spec.seed,

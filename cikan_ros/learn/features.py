@@ -41,7 +41,7 @@ def uses_tau_prev(kind: str) -> bool:
 
 def features(x_d: ArrayLike, x_c: ArrayLike, kind: str = "vnb", tau_prev: ArrayLike | None = None
              ) -> NDArray:
-    """Features of states x_d, x_c (..., 6) [km, km/s] (and τ_{k-1} (...) < 0 [s] for
+    """Features of states x_d, x_c (..., 6) [km, km/s] (and τ_{k-1} (...) != 0 [s] for
     ``"vnb-prev"``) -> (..., n_features(kind)) float64."""
     x_d = np.asarray(x_d, dtype=np.float64)
     x_c = np.asarray(x_c, dtype=np.float64)
@@ -58,7 +58,7 @@ def features(x_d: ArrayLike, x_c: ArrayLike, kind: str = "vnb", tau_prev: ArrayL
             return np.concatenate([p, v, x_c], axis=-1)
         if tau_prev is None:
             raise ValueError("feature set 'vnb-prev' needs tau_prev")
-        lp = np.log(-np.asarray(tau_prev, dtype=np.float64))[..., None]
+        lp = np.log(np.abs(np.asarray(tau_prev, dtype=np.float64)))[..., None]
         return np.concatenate([p, v, x_c, np.broadcast_to(lp, p.shape[:-1] + (1,))], axis=-1)
     raise ValueError(f"unknown feature set {kind!r}; known: {FEATURE_SETS}")
 
@@ -92,8 +92,8 @@ def features_into(x_d: NDArray, x_c: NDArray, code: int, tau_prev: float, out: N
     for i in range(6):
         out[6 + i] = x_c[i]
     if code == VNB_PREV:
-        # ln of a non-negative |τ_{k-1}|: -inf at 0 and NaN for τ > 0 make the proposal unusable.
-        out[12] = math.log(-tau_prev) if tau_prev < 0.0 else (-math.inf if tau_prev == 0.0 else math.nan)
+        # ln|τ_{k-1}| (either side of the chief): -inf at 0 makes the proposal unusable.
+        out[12] = math.log(abs(tau_prev)) if tau_prev != 0.0 else -math.inf
 
 
 def features_one(x_d: ArrayLike, x_c: ArrayLike, kind: str, out: NDArray, tau_prev: float = math.nan

@@ -53,9 +53,10 @@ from ..governor import (PATH_BISECT, PATH_INITIAL, PATH_KEEP, PATH_NN, PATH_NN_B
                         PATH_VERIFY_ZERO, PATH_ZERO, UpdateRecord, initial_update, make_record,
                         start_clock, update_index)
 from ..tsg import ChiefAnchor, ChiefCache, Predictor, quantise_shift
-from .arch import NumpyNet, log_shift_kernel
+from .arch import FAMILIES, NumpyNet, log_shift_kernel
+from .errors import ModelFileError
 from .features import FEATURE_CODES
-from .modelfile import LoadedModel, load_model
+from .modelfile import CARD, LoadedModel, load_model, model_scenario, scenario_model_dir
 
 #: ln|τ| above this (|τ| > ~1.4e17 s) is treated like a non-finite output: out of range.
 MAX_LOG_SHIFT = 40.0
@@ -70,6 +71,8 @@ class LearnedGovernor:
         self.anchor = ChiefAnchor(predictor)
         self.name = name
         self._z = np.empty((1, net.arch.n_in))
+        #: None, or what a model flown on another scenario or side was trained for.
+        self.foreign: str | None = None
         self._code = FEATURE_CODES[net.arch.features]
 
     @classmethod
@@ -86,11 +89,12 @@ class LearnedGovernor:
                                 net.target_mean, net.target_std, self._z, net.kernel_args)
 
     def proposal(self, x_d: ArrayLike, x_c: ArrayLike, tau_prev: float = math.nan) -> float:
-        """τ_c = -exp(NN) on the nanosecond grid; NaN if the network's output is not usable."""
+        """τ_c = side · exp(NN) on the nanosecond grid (side -1 behind the chief, +1 ahead); NaN
+        if the network's output is not usable."""
         y = self.log_shift(x_d, x_c, tau_prev)
         if not (math.isfinite(y) and y <= MAX_LOG_SHIFT):
             return math.nan
-        return quantise_shift(-math.exp(y))
+        return quantise_shift(self.predictor.side * math.exp(y))
 
     def initial(self, x_d: ArrayLike, x_c: ArrayLike, t: float) -> UpdateRecord:
         return initial_update(self.anchor, x_d, x_c, t)
@@ -107,7 +111,7 @@ class LearnedGovernor:
             tau, path, calls, cache = self._paper(pred, x_d, t, tau_prev, tau_c)
         else:
             tau, path, calls, cache = self._keep(pred, x_d, t, tau_prev, tau_c, k)
-        if tau < 0.0 and -tau <= pred.config.tsg.zero_snap_s:
+        if tau != 0.0 and abs(tau) <= pred.config.tsg.zero_snap_s:
             calls += 1
             if pred.verify(x_d, t, 0.0, cache or pred.cache(t)):
                 tau, path = 0.0, PATH_VERIFY_ZERO
@@ -119,7 +123,7 @@ class LearnedGovernor:
         """The paper's Algorithm 1 (without the zero test) with the anchored model ``pred``:
         (τ, path, Verify calls, chief cache)."""
         cache = pred.cache(t)  # chief states along the horizon, shared by this update's predictions
-        if tau_prev <= tau_c <= 0.0:
+        if 0.0 <= pred.side * tau_c <= pred.side * tau_prev:  # τ_c between τ_prev and 0
             if pred.verify(x_d, t, tau_c, cache):
                 return tau_c, PATH_NN, 1, cache
             tau, c = pred.bisect(x_d, t, tau_prev, tau_c, cache)
@@ -133,7 +137,7 @@ class LearnedGovernor:
         Verify calls, chief cache or None)."""
         lc = pred.config.learned
         scheduled = k % lc.probe_every == 0
-        if scheduled and pred.config.tsg.robust and -tau_prev <= pred.config.tsg.zero_snap_s:
+        if scheduled and pred.config.tsg.robust and abs(tau_prev) <= pred.config.tsg.zero_snap_s:
             # Robust Verify's last approach: the feasible shifts above tau_prev form a thin
             # sliver that a budgeted probe misses (measured: tau stalled 3 m from the chief), so
             # the scheduled update searches like the conventional TSG (<= log2(zero_snap/tol) + 1
@@ -154,16 +158,20 @@ class LearnedGovernor:
         return tau, PATH_PROBE, c, cache
 
     def candidates(self, tau_c: float, tau_prev: float) -> list[float]:
-        """The keep rule's candidates c_i = τ_c (1 - s_i) (s), ladder order, those in
-        [τ_prev + δ, 0] only, without repeats; empty when τ_c is NaN or proposes less progress
-        than ρ |τ_prev| (τ_c < τ_prev (1 - ρ), ρ = learned.min_progress)."""
+        """The keep rule's candidates c_i = τ_c (1 - s_i) (s), ladder order, those with
+        0 <= |c_i| <= |τ_prev| - δ on τ_prev's side only, without repeats; empty when τ_c is NaN
+        or proposes less progress than ρ |τ_prev| (|τ_c| > |τ_prev| (1 - ρ), ρ =
+        learned.min_progress). In magnitudes m = side · τ, so one rule serves both sides."""
         lc = self.predictor.config.learned
+        side = self.predictor.side
         out: list[float] = []
-        if math.isnan(tau_c) or tau_c < tau_prev * (1.0 - lc.min_progress):
+        m_prev = side * tau_prev
+        if math.isnan(tau_c) or side * tau_c > m_prev * (1.0 - lc.min_progress):
             return out
         for s in lc.ladder:
             c = quantise_shift(tau_c * (1.0 - s))
-            if tau_prev + lc.min_step_s <= c <= 0.0 and (not out or c < out[-1]):
+            m = side * c
+            if 0.0 <= m <= m_prev - lc.min_step_s and (not out or m > side * out[-1]):
                 out.append(c)
         return out
 
@@ -180,8 +188,32 @@ def nn_accept_rate(updates: Iterable[UpdateRecord]) -> float | None:
 
 def load_learned_governor(name: str, predictor: Predictor) -> LearnedGovernor:
     """The learned governor of a shipped family (``cikan``, ``grbf``, ``rswaf``, ``relu``,
-    ``gelu`` -> ``models/<name>/``) or of a model directory/file. Raises ModelFileError."""
-    model = load_model(name)
-    label = name if name in ("cikan", "grbf", "rswaf", "relu", "gelu") else \
-        f"{model.arch.family}:{Path(model.path).name}"
-    return LearnedGovernor.from_model(model, predictor, label)
+    ``gelu``: the scenario's model for the approach side, ``scenario.models_dir``/<name>[-ahead])
+    or of a model directory/file. A model whose card names another scenario or side is refused
+    unless ``learned.foreign_model`` (then :attr:`LearnedGovernor.foreign` says what it was
+    trained for). Raises ModelFileError."""
+    cfg = predictor.config
+    family = name in FAMILIES
+    if family:
+        where = scenario_model_dir(cfg.scenario.models_dir, name, cfg.mission.approach)
+        if not (where / CARD).is_file():
+            raise ModelFileError(
+                f"no {name} model for scenario {cfg.scenario.name!r}, approach {cfg.mission.approach!r} "
+                f"(looked in {where}); train one (make scenario-models SCENARIO={cfg.scenario.name}) "
+                f"or name a model directory")
+        model = load_model(where)
+    else:
+        model = load_model(name)
+    trained = model_scenario(model.card)
+    wanted = {"name": cfg.scenario.name, "approach": cfg.mission.approach}
+    foreign = None
+    if trained != wanted:
+        foreign = f"trained for scenario {trained['name']!r}, approach {trained['approach']!r}"
+        if not cfg.learned.foreign_model:
+            raise ModelFileError(
+                f"model {model.path} was {foreign}, not scenario {wanted['name']!r}, approach "
+                f"{wanted['approach']!r}: set learned.foreign_model=true to fly it anyway")
+    label = name if family else f"{model.arch.family}:{Path(model.path).name}"
+    gov = LearnedGovernor.from_model(model, predictor, label)
+    gov.foreign = foreign
+    return gov

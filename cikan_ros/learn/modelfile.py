@@ -106,6 +106,33 @@ def save_model(directory: str | Path, arch: Arch, tensors: Mapping[str, Any],
     return d
 
 
+def card_scenario(meta: Mapping[str, Any]) -> dict[str, str]:
+    """The scenario and approach side a model was trained for, from its dataset's metadata
+    (datasets written before scenarios existed are the paper's, from behind)."""
+    flat = meta.get("config") or {}
+    return {"name": str(meta.get("scenario", flat.get("scenario.name", "paper"))),
+            "approach": str(meta.get("approach", flat.get("mission.approach", "behind")))}
+
+
+def model_scenario(card: Mapping[str, Any]) -> dict[str, str]:
+    """``{"name": scenario, "approach": side}`` a model card declares (cards written before
+    scenarios existed: the paper's, from behind; their dataset says so)."""
+    sc = card.get("scenario")
+    if isinstance(sc, Mapping) and "name" in sc and "approach" in sc:
+        return {"name": str(sc["name"]), "approach": str(sc["approach"])}
+    return card_scenario({**(card.get("dataset") or {}), "config": card.get("config") or {}})
+
+
+def scenario_model_dir(models_dir: str, family: str, approach: str) -> Path:
+    """Where a scenario keeps family ``family``'s model for ``approach``:
+    ``<models_dir>/<family>`` behind, ``<models_dir>/<family>-ahead`` ahead; ``models_dir``
+    relative to the project root (or an install's share/cikan_ros) unless absolute."""
+    root = Path(models_dir)
+    if not root.is_absolute():
+        root = MODELS_DIR.parent / root
+    return root / (family if approach == "behind" else f"{family}-ahead")
+
+
 def resolve(name_or_path: str | Path) -> Path:
     """A family name (``models/<family>/``), a model directory, or a file inside one."""
     s = str(name_or_path)

@@ -24,7 +24,7 @@ from .dataset import SPLITS, XC_COLS, XD_COLS, read_parquet
 from .errors import DatasetError, ModelFileError
 from .features import features, fit_normalisation
 from .loss import cinn_log_loss, cinn_log_loss_np
-from .modelfile import library_versions, save_model
+from .modelfile import card_scenario, library_versions, save_model
 from .models import TimeShiftNet
 from .schedule import ExpHyperbolicLR
 
@@ -57,9 +57,15 @@ def load_data(path: str | Path | Sequence[str | Path], kind: str = "vnb") -> Dat
     if not paths:
         raise DatasetError("no dataset given")
     frames, metas = zip(*(read_parquet(p) for p in paths))
+    sides = set()
     for p, df in zip(paths, frames):
-        if (df["tau_star_s"] >= 0).any():
-            raise DatasetError(f"dataset {p} has labels tau* >= 0 (only tau* < 0 can be learned)")
+        tau = df["tau_star_s"]
+        if (tau == 0).any() or not ((tau < 0).all() or (tau > 0).all()):
+            raise DatasetError(f"dataset {p} has labels tau* = 0 or of both signs (one approach "
+                               f"side per dataset, tau* != 0)")
+        sides.add(bool(len(tau) and tau.iloc[0] > 0))
+    if len(sides) > 1:
+        raise DatasetError("datasets of both approach sides (tau* < 0 and tau* > 0) cannot be mixed")
     df = frames[0] if len(frames) == 1 else pd.concat(frames, ignore_index=True)
     meta = dict(metas[0])
     if len(paths) > 1:
@@ -73,7 +79,7 @@ def load_data(path: str | Path | Sequence[str | Path], kind: str = "vnb") -> Dat
         feats = features(part[list(XD_COLS)].to_numpy(), part[list(XC_COLS)].to_numpy(), kind,
                          part["tau_prev_s"].to_numpy(dtype=np.float64))
         tau = part["tau_star_s"].to_numpy(dtype=np.float64)
-        out[s] = SplitData(feats, np.log(-tau), tau, part["mission"].to_numpy())
+        out[s] = SplitData(feats, np.log(np.abs(tau)), tau, part["mission"].to_numpy())
     if len(out["train"].y) == 0 or len(out["val"].y) == 0:
         raise DatasetError(f"dataset {path} needs non-empty train and val splits "
                            f"(has {[len(out[s].y) for s in SPLITS]})")
@@ -284,6 +290,7 @@ def train(arch: Arch, data: Data, cfg: TrainConfig, out: str | Path | None,
     if out is not None:
         meta = {k: v for k, v in data.meta.items() if k != "config"}
         card = {"name": name or arch.family, "family": arch.family,
+                "scenario": card_scenario(data.meta),
                 "dataset": {"file": Path(data.path).name, **meta, "train_labels_used": n_train},
                 "config": data.meta.get("config"),
                 "losses": losses, "training": training, "versions": library_versions(),

@@ -181,12 +181,14 @@ def time_shift_msg(stamp_ns: int, tau_s: float, source: str) -> TimeReference:
     return msg
 
 
-def shift_from_msg(msg: TimeReference) -> tuple[int, float, str]:
-    """(stamp ns, tau s, source) of a TimeReference; MessageError unless tau <= 0."""
+def shift_from_msg(msg: TimeReference, side: int = -1) -> tuple[int, float, str]:
+    """(stamp ns, tau s, source) of a TimeReference; MessageError unless tau lies on the
+    mission's side of 0 (``side`` -1: tau <= 0, the deputy behind the chief; +1: tau >= 0)."""
     stamp = time_to_ns(msg.header.stamp)
     tau_ns = time_to_ns(msg.time_ref) - stamp
-    if tau_ns > 0:
-        raise MessageError(f"time shift must be <= 0, got {tau_ns} ns")
+    if side * tau_ns < 0:
+        raise MessageError(f"time shift must be {'<=' if side < 0 else '>='} 0 "
+                           f"(mission.approach {'behind' if side < 0 else 'ahead'}), got {tau_ns} ns")
     return stamp, ns_to_seconds(tau_ns), msg.source
 
 

@@ -95,7 +95,7 @@ def mission_from_bag(path: str | Path, cfg: Config, governor: str) -> tuple[Miss
     n = len(deputy)
     u_max = cfg.control.u_max_kmps2
     limit = u_max * cfg.truth.max_thrust_factor
-    shifts = _first_valid(msgs.get(TIME_SHIFT, []), tl, lambda m: shift_from_msg(m)[1:])
+    shifts = _first_valid(msgs.get(TIME_SHIFT, []), tl, lambda m: shift_from_msg(m, cfg.side)[1:])
     commands = _first_valid(msgs.get(ACCEL_CMD, []), tl, lambda m: accel_from_msg(m, u_max))
     if has_truth:  # the thrust as applied (the simulator's step records below take precedence)
         commands = _first_valid(msgs.get(TRUTH_ACCEL, []), tl, lambda m: accel_from_msg(m, 2.0 * limit))
@@ -143,7 +143,7 @@ def mission_from_bag(path: str | Path, cfg: Config, governor: str) -> tuple[Miss
     x_d = np.array([deputy[k] for k in range(n)])
     x_c = np.array([chief[k] for k in range(n)])
     t = np.array([tl.seconds(tl.stamp_ns(k)) for k in range(n)])
-    m = margins(x_d, x_c, u, cfg.constraints, limit)
+    m = margins(x_d, x_c, u, cfg.constraints, limit, cfg.side)
     m.h2[-1] = math.nan  # no command is applied at the final instant
     seen = None if not has_truth or cfg.truth.is_nominal else (
         np.array([seen_d[k] for k in range(n)]), np.array([seen_c[k] for k in range(n)]))
