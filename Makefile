@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 EXTRAS := ros,learn,report,dev
 
-.PHONY: install run test bench montecarlo results robustness controller-sweep models models-prev clean
+.PHONY: install run test bench montecarlo results robustness controller-sweep models models-prev scenario-data scenario-models scenario-results clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -99,3 +99,28 @@ models-prev: $(addprefix prev-,$(FAMILIES))
 
 clean:
 	rm -rf $(VENV) build *.egg-info
+
+# Models per scenario and approach side (docs/scenarios.md): labels from the conventional TSG's
+# closed loops on the scenario (SCENARIO=paper|leo|geo|FILE, APPROACH=behind|ahead), then each
+# family of SCENARIO_FAMILIES trained with the paper's tuned architecture and hyper-parameters
+# (`cikan train --like models/<family>`), into the scenario's models directory
+# (scenario.models_dir: <dir>/<family> behind, <dir>/<family>-ahead ahead). E.g.
+#   make scenario-models SCENARIO=leo APPROACH=ahead
+SCENARIO          ?= paper
+APPROACH          ?= behind
+SCENARIO_LABELS   ?= 60000
+SCENARIO_FAMILIES ?= cikan relu
+SCENARIO_RUNS      = runs/scenarios/$(SCENARIO)-$(APPROACH)
+SCENARIO_ARGS      = --scenario $(SCENARIO) --set mission.approach=$(APPROACH)
+SCENARIO_TRAIN    ?= --epochs 30 --patience 6 --max-minutes 20 --threads 1 --quiet
+
+$(SCENARIO_RUNS)/labels.parquet: | $(STAMP)
+	$(BIN)/cikan dataset $(SCENARIO_ARGS) --labels $(SCENARIO_LABELS) --out $@ --seed 2 --workers 2 --chunk 8
+
+scenario-data: $(SCENARIO_RUNS)/labels.parquet
+
+scenario-models: $(SCENARIO_RUNS)/labels.parquet
+	for f in $(SCENARIO_FAMILIES); do \
+	  $(BIN)/cikan train $(SCENARIO_ARGS) --model $$f --like models/$$f --data $(SCENARIO_RUNS)/labels.parquet \
+	    --checkpoint-dir $(SCENARIO_RUNS)/checkpoints/$$f $(SCENARIO_TRAIN) || exit 1; \
+	done

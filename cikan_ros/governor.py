@@ -28,6 +28,7 @@ PATH_NN = "nn"                  # network proposal passed Verify
 PATH_NN_BISECT = "nn+bisect"    # network proposal failed Verify; bisection over [tau_prev, tau_nn]
 PATH_KEEP = "keep"              # keep rule: tau_prev kept without prediction (no progress proposed)
 PATH_PROBE = "probe"            # keep rule: budgeted bisection over [tau_prev, 0] on schedule
+PATH_SEARCH = "search"          # keep rule, network not trusted: the conventional TSG's pi*
 
 
 Clock = tuple[float, float]

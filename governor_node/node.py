@@ -14,7 +14,6 @@ the last verified shift is held: a bad model never crashes a running mission.
 
 from __future__ import annotations
 
-import json
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -91,13 +90,14 @@ class GovernorNode(Node):
         """Say which governor flies from now on, on the latched GOVERNOR_INFO topic (the recorder
         writes it into the bag's metadata): its name and, for a learned one, the model directory
         and the SHA-256 of its weights."""
-        values = {"governor": self.governor.name, "requested": requested}
-        if self.governor.name != "conventional":
-            from cikan_ros.learn.modelfile import CARD, resolve
-
-            model = resolve(requested)
-            values.update(model=str(model.resolve()),
-                          weights_sha256=str(json.loads((model / CARD).read_text())["weights_sha256"]))
+        values = {"governor": self.governor.name, "requested": requested,
+                  "scenario": self.cfg.scenario.name, "approach": self.cfg.mission.approach}
+        model_dir = getattr(self.governor, "model_dir", None)
+        if model_dir is not None:
+            values.update(model=str(model_dir.resolve()), weights_sha256=str(self.governor.weights_sha256))
+        if getattr(self.governor, "foreign", None):
+            values["foreign_model"] = str(self.governor.foreign)
+            self.get_logger().warning(f"flying a foreign model: {self.governor.foreign}")
         self.pub_announce.publish(cv.governor_info(NAME, values))
         self.get_logger().info(f"flying governor {self.governor.name}"
                                + (f" (model {values['model']})" if "model" in values else ""))

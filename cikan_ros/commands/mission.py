@@ -72,6 +72,8 @@ def print_summary(metrics: dict[str, Any], title: str) -> None:
             value = "-" if v is None else fmt.format(v)
         table.add_row(escape(label.format(**{k: metrics.get(k, math.nan) for k in
                                               ("dock_distance_m", "dock_speed_mps")})), value)
+    if metrics.get("foreign_model"):
+        table.add_row("model", f"FOREIGN: {metrics['foreign_model']} (learned.foreign_model)")
     if "bag" in metrics:
         table.add_row("bag", str(metrics["bag"]))
     console = Console()
@@ -99,9 +101,16 @@ def run(args: argparse.Namespace) -> int:
         if governor.name != "conventional":  # fraction of consulted proposals that passed Verify
             from ..learn.governor import nn_accept_rate
             metrics["nn_accept_rate"] = nn_accept_rate(result.updates)
+        if getattr(governor, "foreign", None):
+            metrics["foreign_model"] = governor.foreign
         metrics.update(seed=args.seed, mode="offline")
     else:
         from ..ros.launch import run_ros_mission
+
+        if args.governor_exec is None and args.governor != "conventional":
+            from ..governor import make_governor
+
+            make_governor(args.governor, cfg)  # a bad or foreign model: one line, before any node starts
 
         metrics = run_ros_mission(cfg, governor=args.governor, seed=args.seed, bag=args.bag,
                                   config_path=args.config, overrides=args.overrides,

@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
 from ..learn.features import FEATURE_SETS
-from . import dumps, seed_arg
+from . import add_config_args, config_from_args, dumps, seed_arg
 
 FAMILY_HELP = "cikan (B-spline KAN), grbf, rswaf, relu (MLP), gelu (MLP)"
 
@@ -20,11 +21,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--data", default=["runs/dataset.parquet"], nargs="+", metavar="PATH",
                    help="dataset (Parquet); several are concatenated, each label in its own "
                         "file's split (e.g. conventional plus on-policy labels)")
-    p.add_argument("--out", required=True, metavar="DIR", help="model directory, e.g. models/cikan")
+    p.add_argument("--out", default=None, metavar="DIR",
+                   help="model directory, e.g. models/my_cikan (default: the scenario's, "
+                        "scenario.models_dir/<family>[-ahead]; the dataset must be of that scenario and side)")
+    add_config_args(p)
     p.add_argument("--study", metavar="URL", default=None,
                    help="take architecture and hyper-parameters from the best trial of the Optuna "
                         "study in this storage (see `cikan tune`); explicit options override them")
     p.add_argument("--study-name", default=None, help="study name (default cikan-tsg-MODEL)")
+    p.add_argument("--like", metavar="MODEL", default=None,
+                   help="take architecture and hyper-parameters from this model's card (a shipped "
+                        "family or a model directory of the same family), e.g. to train the "
+                        "paper's tuned network on another scenario; explicit options override them")
     g = p.add_argument_group("architecture")
     g.add_argument("--width", type=int, default=None, help="hidden width n")
     g.add_argument("--layers", type=int, default=None, help="layers l (maps)")
@@ -34,7 +42,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--no-hidden-norm", action="store_true", help="no LayerNorm on hidden KAN inputs")
     g.add_argument("--features", default="vnb", choices=FEATURE_SETS, help="feature set")
     t = p.add_argument_group("training")
-    t.add_argument("--epochs", type=int, default=40, help="epochs N of the schedule")
+    t.add_argument("--epochs", type=int, default=40,
+                   help="epochs N of the schedule (0: write the untrained network, its seeded "
+                        "random initial weights, e.g. to test the keep rule against a network that does not fit)")
     t.add_argument("--upper-bound", type=int, default=0, help="ExpHyperbolicLR U >= N (0: N)")
     t.add_argument("--lr", type=float, default=None, help="initial learning rate")
     t.add_argument("--lr-inf", type=float, default=None, help="final learning rate (default lr/100)")
@@ -54,6 +64,23 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def like_model(name: str, family: str, features: str) -> tuple[Any, dict]:
+    """(architecture, hyper-parameters) of an existing model's card, for ``--like``."""
+    from dataclasses import replace
+
+    from ..learn.errors import ModelFileError
+    from ..learn.modelfile import load_model
+
+    model = load_model(name)
+    if model.arch.family != family:
+        raise ModelFileError(f"--like {name}: that model is a {model.arch.family}, not a {family}")
+    training = model.card.get("training") or {}
+    hp = {k: training[k] for k in ("lr", "weight_decay", "batch", "theta_c") if k in training}
+    if len(hp) != 4:
+        raise ModelFileError(f"--like {name}: its card lacks the training hyper-parameters")
+    return replace(model.arch, features=features, n_in=0), hp
+
+
 def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
     from pathlib import Path
@@ -65,6 +92,13 @@ def run(args: argparse.Namespace) -> int:
     arch = Arch(args.model, width=32 if args.model in ("cikan", "grbf", "rswaf") else 128, layers=3,
                 features=args.features)
     extra: dict = {}
+    if args.like and args.study:
+        from ..errors import ConfigError
+
+        raise ConfigError("--like and --study both choose the hyper-parameters: give one")
+    if args.like:
+        arch, hp = like_model(args.like, args.model, args.features)
+        extra["like"] = args.like
     if args.study:
         import optuna
 
@@ -98,6 +132,17 @@ def run(args: argparse.Namespace) -> int:
                       patience=args.patience, seed=args.seed, max_minutes=args.max_minutes,
                       threads=args.threads, max_train=args.max_train, **hp)
     data = load_data(args.data, args.features)
+    if args.out is None:
+        from ..learn.modelfile import card_scenario, scenario_model_dir
+
+        cfg_run = config_from_args(args)
+        want = {"name": cfg_run.scenario.name, "approach": cfg_run.mission.approach}
+        if card_scenario(data.meta) != want:
+            from ..learn.errors import DatasetError
+
+            raise DatasetError(f"dataset {data.path} is of scenario {card_scenario(data.meta)}, not "
+                               f"{want}: give --scenario/--set mission.approach of the dataset, or --out")
+        args.out = str(scenario_model_dir(cfg_run.scenario.models_dir, args.model, cfg_run.mission.approach))
     ckpt = args.checkpoint_dir or str(Path("runs/checkpoints") / Path(args.out).name)
     res = train(arch, data, cfg, args.out, checkpoint_dir=ckpt, resume=args.resume,
                 progress=not args.quiet, name=Path(args.out).name, card_extra=extra)

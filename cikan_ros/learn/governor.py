@@ -43,13 +43,14 @@ No torch here: the network runs through :class:`cikan_ros.learn.arch.NumpyNet`.
 from __future__ import annotations
 
 import math
+from collections import deque
 from pathlib import Path
 from typing import Iterable
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..governor import (PATH_BISECT, PATH_INITIAL, PATH_KEEP, PATH_NN, PATH_NN_BISECT, PATH_PROBE,
+from ..governor import (PATH_BISECT, PATH_INITIAL, PATH_KEEP, PATH_NN, PATH_NN_BISECT, PATH_PROBE, PATH_SEARCH,
                         PATH_VERIFY_ZERO, PATH_ZERO, UpdateRecord, initial_update, make_record,
                         start_clock, update_index)
 from ..tsg import ChiefAnchor, ChiefCache, Predictor, quantise_shift
@@ -62,6 +63,47 @@ from .modelfile import CARD, LoadedModel, load_model, model_scenario, scenario_m
 MAX_LOG_SHIFT = 40.0
 
 
+class Trust:
+    """Whether the keep rule trusts the network (docs/learned_update_rule.md, "A network that
+    does not fit"). A mission starts *searching*: each update is the conventional TSG's π*, and
+    the network's proposal is judged against it for free (a *shadow hit* when the ladder would
+    have made at least 1 - slack of π*'s progress); ``hits`` consecutive shadow hits earn the
+    network back. While trusted, updates whose outcome says the network does not fit (every
+    candidate failed; no progress proposed where the probe found some; the audit found the
+    proposal too conservative) are misses, and ``misses`` among the last ``window`` judged
+    updates send it back to searching. Deterministic: a function of the mission's updates."""
+
+    def __init__(self, misses: int, window: int, hits: int) -> None:
+        self.need_misses, self.need_hits = misses, hits
+        self.recent: deque[bool] = deque(maxlen=window)
+        self.searching = False
+        self.hits = 0
+        self.switches = 0
+        self.reset()
+
+    def reset(self) -> None:
+        """A mission's start: searching until the network earns trust (trusted if hits = 0)."""
+        self.recent.clear()
+        self.searching = self.need_misses > 0 and self.need_hits > 0
+        self.hits = 0
+        self.switches = 0
+
+    def judge(self, miss: bool) -> None:
+        """One trusted update's outcome."""
+        self.recent.append(miss)
+        if self.need_misses and sum(self.recent) >= self.need_misses:
+            self.searching, self.hits = True, 0
+            self.recent.clear()
+            self.switches += 1
+
+    def shadow(self, hit: bool) -> None:
+        """One searching update's shadow judgement of the proposal."""
+        self.hits = self.hits + 1 if hit else 0
+        if self.hits >= self.need_hits:
+            self.searching, self.hits = False, 0
+            self.switches += 1
+
+
 class LearnedGovernor:
     """Algorithm 1 with a network π̃_θ (ln|τ| from z-scored features) and Verify/bisection fallback."""
 
@@ -71,14 +113,22 @@ class LearnedGovernor:
         self.anchor = ChiefAnchor(predictor)
         self.name = name
         self._z = np.empty((1, net.arch.n_in))
+        lc = predictor.config.learned
+        self.trust = Trust(lc.trust_misses, lc.trust_window, lc.trust_hits)
         #: None, or what a model flown on another scenario or side was trained for.
         self.foreign: str | None = None
+        #: The model directory and weights digest flown (None for a network built in memory).
+        self.model_dir: Path | None = None
+        self.weights_sha256: str | None = None
         self._code = FEATURE_CODES[net.arch.features]
 
     @classmethod
     def from_model(cls, model: LoadedModel, predictor: Predictor, name: str | None = None
                    ) -> "LearnedGovernor":
-        return cls(NumpyNet(model.arch, model.tensors), predictor, name or model.arch.family)
+        gov = cls(NumpyNet(model.arch, model.tensors), predictor, name or model.arch.family)
+        gov.model_dir = Path(model.path)
+        gov.weights_sha256 = str(model.card.get("weights_sha256", ""))
+        return gov
 
     def log_shift(self, x_d: ArrayLike, x_c: ArrayLike, tau_prev: float = math.nan) -> float:
         """NN(features): predicted ln|τ| (s) at states x_d, x_c (km, km/s) with previous shift
@@ -97,6 +147,7 @@ class LearnedGovernor:
         return quantise_shift(self.predictor.side * math.exp(y))
 
     def initial(self, x_d: ArrayLike, x_c: ArrayLike, t: float) -> UpdateRecord:
+        self.trust.reset()
         return initial_update(self.anchor, x_d, x_c, t)
 
     def update(self, x_d: ArrayLike, x_c: ArrayLike, t: float, tau_prev: float) -> UpdateRecord:
@@ -111,7 +162,7 @@ class LearnedGovernor:
             tau, path, calls, cache = self._paper(pred, x_d, t, tau_prev, tau_c)
         else:
             tau, path, calls, cache = self._keep(pred, x_d, t, tau_prev, tau_c, k)
-        if tau != 0.0 and abs(tau) <= pred.config.tsg.zero_snap_s:
+        if path != PATH_SEARCH and tau != 0.0 and abs(tau) <= pred.config.tsg.zero_snap_s:
             calls += 1
             if pred.verify(x_d, t, 0.0, cache or pred.cache(t)):
                 tau, path = 0.0, PATH_VERIFY_ZERO
@@ -136,6 +187,11 @@ class LearnedGovernor:
         """The keep rule (without the zero test) with the anchored model ``pred``: (τ, path,
         Verify calls, chief cache or None)."""
         lc = pred.config.learned
+        trust = self.trust
+        if trust.searching:  # π* as the conventional TSG finds it (its zero test first)
+            tau, calls = pred.optimal_shift(x_d, t, tau_prev)
+            trust.shadow(self.would_pay(tau_c, tau_prev, tau))
+            return tau, PATH_SEARCH, calls, None
         scheduled = k % lc.probe_every == 0
         if scheduled and pred.config.tsg.robust and abs(tau_prev) <= pred.config.tsg.zero_snap_s:
             # Robust Verify's last approach: the feasible shifts above tau_prev form a thin
@@ -150,12 +206,35 @@ class LearnedGovernor:
             budget = lc.probe_budget if scheduled else lc.fallback_budget
             tau, index, calls = pred.first_feasible(x_d, t, candidates, tau_prev, budget, cache)
             path = PATH_NN if index >= 0 else PATH_NN_BISECT if budget > 0 else PATH_KEEP
+            if index < 0:
+                trust.judge(miss=True)        # every candidate failed: the proposal does not fit
+            elif index > 0:
+                trust.judge(miss=False)       # a more optimistic rung failed: near π*
+            elif scheduled and lc.audit_step > 0.0:
+                # The most optimistic rung passed: is the network too conservative? One Verify
+                # audit_step of the way from it to 0 says so when it passes (and is taken).
+                audit = quantise_shift(tau * (1.0 - lc.audit_step))
+                calls += 1
+                too_far = audit != tau and pred.verify(x_d, t, audit, cache)
+                trust.judge(miss=too_far)
+                if too_far:
+                    tau = audit
             return tau, path, calls, cache
         if not scheduled or lc.probe_budget == 0:
             return tau_prev, PATH_KEEP, 0, None
         cache = pred.cache(t)
         tau, c = pred.bisect(x_d, t, tau_prev, 0.0, cache, lc.probe_budget)
+        trust.judge(miss=tau != tau_prev)     # no progress proposed, but the probe found some
         return tau, PATH_PROBE, c, cache
+
+    def would_pay(self, tau_c: float, tau_prev: float, tau_star: float) -> bool:
+        """Shadow judgement: would the ladder on τ_c have made at least 1 - slack of π*'s
+        progress from τ_prev (taking a candidate as feasible when it is no closer to 0 than
+        τ* = π*)? In magnitudes m = side · τ."""
+        side = self.predictor.side
+        m_prev, m_star = side * tau_prev, side * tau_star
+        answer = next((side * c for c in self.candidates(tau_c, tau_prev) if side * c >= m_star), m_prev)
+        return m_prev - answer >= (1.0 - self.predictor.config.learned.trust_slack) * (m_prev - m_star)
 
     def candidates(self, tau_c: float, tau_prev: float) -> list[float]:
         """The keep rule's candidates c_i = τ_c (1 - s_i) (s), ladder order, those with
@@ -177,12 +256,13 @@ class LearnedGovernor:
 
 
 def nn_accept_rate(updates: Iterable[UpdateRecord]) -> float | None:
-    """Fraction of the updates that consulted the network (every path but "zero") whose proposal
-    passed Verify and was returned (path "nn"). None when the network was never consulted.
+    """Fraction of the updates that consulted the network (every path but "zero", "initial" and
+    "search", where it was not trusted) whose proposal passed Verify and was returned (path
+    "nn"). None when the network was never consulted.
 
     A proposal that passed Verify and was then snapped to 0 by the zero test counts as not
     accepted (its path is "verify-zero"); this happens at most once per mission."""
-    consulted = [r.path for r in updates if r.path not in (PATH_ZERO, PATH_INITIAL)]
+    consulted = [r.path for r in updates if r.path not in (PATH_ZERO, PATH_INITIAL, PATH_SEARCH)]
     return consulted.count(PATH_NN) / len(consulted) if consulted else None
 
 

@@ -105,8 +105,9 @@ class TrainConfig:
     extra: dict[str, Any] = field(default_factory=dict)
 
     def check(self) -> None:
-        if self.epochs < 1 or self.batch < 1 or self.patience < 1 or self.threads < 1:
-            raise DatasetError("epochs, batch, patience and threads must be >= 1")
+        if self.epochs < 0 or self.batch < 1 or self.patience < 1 or self.threads < 1:
+            raise DatasetError("epochs must be >= 0 (0: the untrained network, random initial "
+                               "weights), batch, patience and threads >= 1")
         if not (self.lr > 0 and self.lr_inf > 0 and self.weight_decay >= 0 and self.theta_c >= 0):
             raise DatasetError("need lr > 0, lr_inf > 0, weight_decay >= 0, theta_c >= 0")
         if self.upper_bound and self.upper_bound < self.epochs:
@@ -131,7 +132,7 @@ def split_report(net: TimeShiftNet, z: torch.Tensor, s: SplitData, theta_c: floa
         return {}
     p = predict(net, z)
     err = s.y - p
-    tau_hat = -np.exp(p)
+    tau_hat = np.sign(s.tau) * np.exp(p)
     return {
         "loss": cinn_log_loss_np(p, s.y, theta_c),
         "loss_theta1": cinn_log_loss_np(p, s.y, 1.0),
@@ -210,7 +211,7 @@ def train(arch: Arch, data: Data, cfg: TrainConfig, out: str | Path | None,
     yt = _tensor(tr.y[:n_train])
     z_train = z["train"][:n_train]
     opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    sched = ExpHyperbolicLR(opt, cfg.epochs, cfg.upper_bound or cfg.epochs, cfg.lr_inf)
+    sched = ExpHyperbolicLR(opt, max(cfg.epochs, 1), cfg.upper_bound or max(cfg.epochs, 1), cfg.lr_inf)
     ckpt = Path(checkpoint_dir) if checkpoint_dir else None
     st: dict[str, Any] = {"epoch": 0, "best_val": math.inf, "best_epoch": 0, "bad_epochs": 0,
                           "wall_s": 0.0, "history": []}

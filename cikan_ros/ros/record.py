@@ -18,6 +18,7 @@ records (the shift it held when a shift came late), and governor_node's decision
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import replace
 from pathlib import Path
@@ -173,4 +174,25 @@ def recorded_metrics(path: str | Path, cfg: Config, governor: str) -> tuple[Miss
                    missing_shifts=summary.pop("missing_shifts"))
     if summary:
         metrics["ros"] = summary
+    foreign = [a["foreign_model"] for a in bag_governor_announcements(path) if a.get("foreign_model")]
+    if foreign:
+        metrics["foreign_model"] = foreign[-1]
     return result, metrics
+
+
+def bag_governor_announcements(path: str | Path) -> list[dict[str, Any]]:
+    """The governor announcements a bag's metadata holds (``cikan_ros.governor_announcements``:
+    which governor flew, its model, scenario and side; empty when there are none)."""
+    import yaml
+
+    meta_file = Path(path) / "metadata.yaml"
+    try:
+        meta = yaml.safe_load(meta_file.read_text()) or {}
+    except (OSError, yaml.YAMLError):
+        return []
+    custom = (meta.get("rosbag2_bagfile_information") or {}).get("custom_data") or {}
+    try:
+        out = json.loads(custom.get("cikan_ros.governor_announcements", "[]"))
+    except json.JSONDecodeError:
+        return []
+    return [a for a in out if isinstance(a, dict)] if isinstance(out, list) else []
