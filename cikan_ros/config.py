@@ -314,8 +314,8 @@ class LearnedConfig:
     trust_misses: int = 3
     trust_window: int = 6
     trust_hits: int = 3
-    trust_slack: float = 0.25
-    audit_step: float = 0.5
+    audit_step: float = 0.1
+    trust_at_start: str = "search"
     foreign_model: bool = False
 
     def __post_init__(self) -> None:
@@ -340,10 +340,10 @@ class LearnedConfig:
         _check(isinstance(self.trust_misses, int) and 0 <= self.trust_misses <= self.trust_window,
                "learned.trust_misses", self.trust_misses,
                f"must be an integer in [0, learned.trust_window = {self.trust_window}] (0: always trust)")
-        _check(isinstance(self.trust_hits, int) and 0 <= self.trust_hits <= 64, "learned.trust_hits",
-               self.trust_hits, "must be an integer in [0, 64] (0: start trusting the network)")
-        _check(math.isfinite(self.trust_slack) and 0.0 <= self.trust_slack < 1.0, "learned.trust_slack",
-               self.trust_slack, "must be in [0, 1)")
+        _check(isinstance(self.trust_hits, int) and 1 <= self.trust_hits <= 64, "learned.trust_hits",
+               self.trust_hits, "must be an integer in [1, 64]")
+        _check(self.trust_at_start in ("network", "search"), "learned.trust_at_start", self.trust_at_start,
+               "must be 'network' (a mission starts trusting it) or 'search' (it must earn trust)")
         _check(math.isfinite(self.audit_step) and 0.0 <= self.audit_step < 1.0, "learned.audit_step",
                self.audit_step, "must be in [0, 1) (0: no audit)")
 

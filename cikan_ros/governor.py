@@ -29,6 +29,7 @@ PATH_NN_BISECT = "nn+bisect"    # network proposal failed Verify; bisection over
 PATH_KEEP = "keep"              # keep rule: tau_prev kept without prediction (no progress proposed)
 PATH_PROBE = "probe"            # keep rule: budgeted bisection over [tau_prev, 0] on schedule
 PATH_SEARCH = "search"          # keep rule, network not trusted: the conventional TSG's pi*
+PATH_AUDIT = "audit"            # keep rule: the scheduled audit found the answer lagging and took the audited shift
 
 
 Clock = tuple[float, float]

@@ -50,7 +50,8 @@ from typing import Iterable
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..governor import (PATH_BISECT, PATH_INITIAL, PATH_KEEP, PATH_NN, PATH_NN_BISECT, PATH_PROBE, PATH_SEARCH,
+from ..governor import (PATH_AUDIT, PATH_BISECT, PATH_INITIAL, PATH_KEEP, PATH_NN, PATH_NN_BISECT, PATH_PROBE,
+                        PATH_SEARCH,
                         PATH_VERIFY_ZERO, PATH_ZERO, UpdateRecord, initial_update, make_record,
                         start_clock, update_index)
 from ..tsg import ChiefAnchor, ChiefCache, Predictor, quantise_shift
@@ -73,8 +74,9 @@ class Trust:
     proposal too conservative) are misses, and ``misses`` among the last ``window`` judged
     updates send it back to searching. Deterministic: a function of the mission's updates."""
 
-    def __init__(self, misses: int, window: int, hits: int) -> None:
+    def __init__(self, misses: int, window: int, hits: int, start_searching: bool = False) -> None:
         self.need_misses, self.need_hits = misses, hits
+        self.start_searching = start_searching
         self.recent: deque[bool] = deque(maxlen=window)
         self.searching = False
         self.hits = 0
@@ -82,9 +84,10 @@ class Trust:
         self.reset()
 
     def reset(self) -> None:
-        """A mission's start: searching until the network earns trust (trusted if hits = 0)."""
+        """A mission's start: trusted (``start_searching`` False) or searching until the
+        network earns trust."""
         self.recent.clear()
-        self.searching = self.need_misses > 0 and self.need_hits > 0
+        self.searching = self.start_searching and self.need_misses > 0
         self.hits = 0
         self.switches = 0
 
@@ -114,7 +117,7 @@ class LearnedGovernor:
         self.name = name
         self._z = np.empty((1, net.arch.n_in))
         lc = predictor.config.learned
-        self.trust = Trust(lc.trust_misses, lc.trust_window, lc.trust_hits)
+        self.trust = Trust(lc.trust_misses, lc.trust_window, lc.trust_hits, lc.trust_at_start == "search")
         #: None, or what a model flown on another scenario or side was trained for.
         self.foreign: str | None = None
         #: The model directory and weights digest flown (None for a network built in memory).
@@ -190,7 +193,9 @@ class LearnedGovernor:
         trust = self.trust
         if trust.searching:  # π* as the conventional TSG finds it (its zero test first)
             tau, calls = pred.optimal_shift(x_d, t, tau_prev)
-            trust.shadow(self.would_pay(tau_c, tau_prev, tau))
+            judged = self.would_pay(tau_c, tau_prev, tau)
+            if judged is not None:
+                trust.shadow(judged)
             return tau, PATH_SEARCH, calls, None
         scheduled = k % lc.probe_every == 0
         if scheduled and pred.config.tsg.robust and abs(tau_prev) <= pred.config.tsg.zero_snap_s:
@@ -206,35 +211,44 @@ class LearnedGovernor:
             budget = lc.probe_budget if scheduled else lc.fallback_budget
             tau, index, calls = pred.first_feasible(x_d, t, candidates, tau_prev, budget, cache)
             path = PATH_NN if index >= 0 else PATH_NN_BISECT if budget > 0 else PATH_KEEP
-            if index < 0:
-                trust.judge(miss=True)        # every candidate failed: the proposal does not fit
-            elif index > 0:
-                trust.judge(miss=False)       # a more optimistic rung failed: near π*
-            elif scheduled and lc.audit_step > 0.0:
-                # The most optimistic rung passed: is the network too conservative? One Verify
-                # audit_step of the way from it to 0 says so when it passes (and is taken).
-                audit = quantise_shift(tau * (1.0 - lc.audit_step))
-                calls += 1
-                too_far = audit != tau and pred.verify(x_d, t, audit, cache)
-                trust.judge(miss=too_far)
-                if too_far:
-                    tau = audit
-            return tau, path, calls, cache
-        if not scheduled or lc.probe_budget == 0:
+            stuck = index < 0 and tau == tau_prev   # every proposal failed and nothing was found
+        elif not scheduled or lc.probe_budget == 0:
             return tau_prev, PATH_KEEP, 0, None
-        cache = pred.cache(t)
-        tau, c = pred.bisect(x_d, t, tau_prev, 0.0, cache, lc.probe_budget)
-        trust.judge(miss=tau != tau_prev)     # no progress proposed, but the probe found some
-        return tau, PATH_PROBE, c, cache
+        else:
+            cache = pred.cache(t)
+            tau, calls = pred.bisect(x_d, t, tau_prev, 0.0, cache, lc.probe_budget)
+            path = PATH_PROBE
+            stuck = False
+            if tau != tau_prev:   # the network proposed no progress, and the probe found some
+                trust.judge(miss=True)
+        if (scheduled or stuck) and lc.audit_step > 0.0 and tau != 0.0:
+            # The audit: does the answer lag π*? One Verify audit_step of the way from it to 0;
+            # when it passes, the network left that much progress behind (a miss), and the
+            # audited shift, verified, is the answer. Also when every proposal failed and the
+            # search below them found nothing: a stall (π* = τ_prev) or a network that overshoots.
+            audit = quantise_shift(tau * (1.0 - lc.audit_step))
+            if audit != tau:
+                calls += 1
+                lags = pred.verify(x_d, t, audit, cache)
+                trust.judge(miss=lags)
+                if lags:
+                    tau, path = audit, PATH_AUDIT
+        return tau, path, calls, cache
 
-    def would_pay(self, tau_c: float, tau_prev: float, tau_star: float) -> bool:
-        """Shadow judgement: would the ladder on τ_c have made at least 1 - slack of π*'s
-        progress from τ_prev (taking a candidate as feasible when it is no closer to 0 than
-        τ* = π*)? In magnitudes m = side · τ."""
+    def would_pay(self, tau_c: float, tau_prev: float, tau_star: float) -> bool | None:
+        """Shadow judgement: would the keep rule on τ_c have answered within the audit's reach
+        of τ* = π*, so that its audit would have found no lag? The ladder's answer is its first
+        candidate no closer to 0 than τ* (those closer fail Verify), else τ_prev; it pays when
+        moving it audit_step of the way to 0 passes τ*. None (no evidence) when π* moved τ by
+        less than the audit's reach (holding τ_prev would pass too) or to 0 (the zero test's
+        business). In magnitudes m = side · τ."""
         side = self.predictor.side
+        keep = 1.0 - self.predictor.config.learned.audit_step
         m_prev, m_star = side * tau_prev, side * tau_star
+        if m_star == 0.0 or m_prev * keep < m_star:
+            return None
         answer = next((side * c for c in self.candidates(tau_c, tau_prev) if side * c >= m_star), m_prev)
-        return m_prev - answer >= (1.0 - self.predictor.config.learned.trust_slack) * (m_prev - m_star)
+        return answer * keep < m_star
 
     def candidates(self, tau_c: float, tau_prev: float) -> list[float]:
         """The keep rule's candidates c_i = τ_c (1 - s_i) (s), ladder order, those with
