@@ -311,11 +311,10 @@ class LearnedConfig:
     fallback_budget: int = 1
     probe_every: int = 3
     probe_budget: int = 2
-    trust_misses: int = 3
-    trust_window: int = 6
+    trust_credit: int = 3
     trust_hits: int = 3
     audit_step: float = 0.1
-    trust_at_start: str = "search"
+    trust_at_start: str = "network"
     foreign_model: bool = False
 
     def __post_init__(self) -> None:
@@ -335,15 +334,12 @@ class LearnedConfig:
                    "must be an integer in [0, 64]")
         _check(isinstance(self.probe_every, int) and self.probe_every >= 1, "learned.probe_every",
                self.probe_every, "must be an integer >= 1")
-        _check(isinstance(self.trust_window, int) and 1 <= self.trust_window <= 64, "learned.trust_window",
-               self.trust_window, "must be an integer in [1, 64]")
-        _check(isinstance(self.trust_misses, int) and 0 <= self.trust_misses <= self.trust_window,
-               "learned.trust_misses", self.trust_misses,
-               f"must be an integer in [0, learned.trust_window = {self.trust_window}] (0: always trust)")
+        _check(isinstance(self.trust_credit, int) and 0 <= self.trust_credit <= 64, "learned.trust_credit",
+               self.trust_credit, "must be an integer in [0, 64] (0: never trust the network)")
         _check(isinstance(self.trust_hits, int) and 1 <= self.trust_hits <= 64, "learned.trust_hits",
                self.trust_hits, "must be an integer in [1, 64]")
         _check(self.trust_at_start in ("network", "search"), "learned.trust_at_start", self.trust_at_start,
-               "must be 'network' (a mission starts trusting it) or 'search' (it must earn trust)")
+               "must be 'network' (a mission starts with it on probation) or 'search' (it must earn trust)")
         _check(math.isfinite(self.audit_step) and 0.0 <= self.audit_step < 1.0, "learned.audit_step",
                self.audit_step, "must be in [0, 1) (0: no audit)")
 

@@ -21,6 +21,13 @@ conventional TSG and in the same run, under the default update rule (``learned.a
   Algorithm 1 when the default is "keep"), timed in the same interleaved rounds;
 - under a non-nominal truth or robust Verify, the same figures on the states of missions flown
   under it, every timed update anchoring the chief as the mission did (``cikan_ros.timing``);
+- the per-state figures above time the network's path: the keep rule's trust (a mission starts
+  searching like the conventional TSG until the network earns trust) is granted before each
+  timed update. What missions cost as flown, trust included: ``<m>_mission_update_ms_mean``
+  (CPU time of the active updates of the governor's own missions from the benchmark's starts),
+  ``<m>_mission_speedup_mean`` against the conventional TSG's missions from the same starts,
+  flown in turn with them, and ``<m>_search_rate``: the share of those updates answered by
+  searching (path "search");
 - ``dataset_labels_per_s``: label generation rate of ``cikan dataset`` in this process (one core,
   kernels warm), over a fixed set of missions.
 """
@@ -83,6 +90,8 @@ def interleaved_times(governors: list[Any], states: BenchStates, repeats: int
         runs: list[list[Any]] = [[] for _ in governors]
         for _ in range(repeats):
             for g, gov in enumerate(governors):
+                if hasattr(gov, "trust"):
+                    gov.trust.grant()   # time the network's path (mission_figures: as flown)
                 runs[g].append(timed_update(gov, s, prior))
         for g in range(len(governors)):
             walls[g][i] = statistics.median(cpu for _, cpu in runs[g])
@@ -156,7 +165,36 @@ def learned_section(cfg: Config, states: BenchStates, repeats: int) -> dict[str,
                 runs.append(time.thread_time() - t0)
             fwd.append(statistics.median(runs))
         out[f"{name}_forward_us_mean"] = float(np.mean(fwd) * 1e6)
+    out.update(mission_figures(ConventionalGovernor(pred), govs, states))
     if missing:
         out["learned_models_missing"] = missing
     out.update(dataset_rate(cfg, pred))
+    return out
+
+
+def mission_figures(conventional: Any, governors: list[Any], states: BenchStates) -> dict[str, Any]:
+    """Active-update CPU time of whole missions from the benchmark's starts (nominal start, then
+    seeds 1, 2, ...; truth seed = start seed), each learned governor flown in turn with the
+    conventional TSG, start by start: what the keep rule's trust costs as flown."""
+    from ..governor import PATH_SEARCH
+    from ..mission import run_mission
+
+    cpu: dict[str, list[float]] = {g.name: [] for g in [conventional] + governors}
+    searched: dict[str, int] = {g.name: 0 for g in governors}
+    seeds = [s for s in [None] + list(range(1, states.n_missions)) if s not in states.infeasible_seeds]
+    for seed, x0 in zip(seeds, states.starts):
+        for gov in [conventional] + governors:
+            gov.anchor.current, gov.anchor.re_anchors = gov.anchor.base, 0
+            res = run_mission(gov, x0, seed)
+            active = [u for u in res.updates if u.active]
+            cpu[gov.name] += [u.cpu_s for u in active]
+            if gov is not conventional:
+                searched[gov.name] += sum(u.path == PATH_SEARCH for u in active)
+    conv = float(np.mean(cpu[conventional.name]))
+    out: dict[str, Any] = {"mission_conventional_update_ms_mean": conv * 1e3}
+    for gov in governors:
+        mean = float(np.mean(cpu[gov.name]))
+        out[f"{gov.name}_mission_update_ms_mean"] = mean * 1e3
+        out[f"{gov.name}_mission_speedup_mean"] = conv / mean
+        out[f"{gov.name}_search_rate"] = searched[gov.name] / len(cpu[gov.name])
     return out

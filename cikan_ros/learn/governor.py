@@ -43,7 +43,6 @@ No torch here: the network runs through :class:`cikan_ros.learn.arch.NumpyNet`.
 from __future__ import annotations
 
 import math
-from collections import deque
 from pathlib import Path
 from typing import Iterable
 
@@ -66,45 +65,53 @@ MAX_LOG_SHIFT = 40.0
 
 class Trust:
     """Whether the keep rule trusts the network (docs/learned_update_rule.md, "A network that
-    does not fit"). A mission starts *searching*: each update is the conventional TSG's π*, and
-    the network's proposal is judged against it for free (a *shadow hit* when the ladder would
-    have made at least 1 - slack of π*'s progress); ``hits`` consecutive shadow hits earn the
-    network back. While trusted, updates whose outcome says the network does not fit (every
-    candidate failed; no progress proposed where the probe found some; the audit found the
-    proposal too conservative) are misses, and ``misses`` among the last ``window`` judged
-    updates send it back to searching. Deterministic: a function of the mission's updates."""
+    does not fit"): a credit c in [0, cap].
 
-    def __init__(self, misses: int, window: int, hits: int, start_searching: bool = False) -> None:
-        self.need_misses, self.need_hits = misses, hits
-        self.start_searching = start_searching
-        self.recent: deque[bool] = deque(maxlen=window)
-        self.searching = False
+    - c > 0: the network is trusted (the keep rule). Judged updates move c: a *miss* (the audit
+      found the answer lagging π* by its reach, or a probe found progress the network did not
+      propose) takes one credit, a *hit* (the audit found none) adds one, up to ``cap``. Below
+      the cap the network is on probation: every update is audited, not only scheduled ones,
+      so a network that does not fit loses trust at its first lagging answer.
+    - c = 0: searching. Each update is the conventional TSG's π*; the proposal is judged
+      against it for free (a *shadow* hit or miss, :meth:`LearnedGovernor.would_pay`), and
+      ``hits`` consecutive shadow hits give back one credit (probation).
+
+    A mission starts on probation (``start`` "network", c = 1) or searching ("search").
+    Deterministic: a function of the mission's updates."""
+
+    def __init__(self, cap: int, hits: int, start: str = "network") -> None:
+        self.cap, self.need_hits, self.start = cap, hits, start
+        self.credit = 0
         self.hits = 0
-        self.switches = 0
         self.reset()
 
+    @property
+    def searching(self) -> bool:
+        return self.credit == 0
+
+    @property
+    def probation(self) -> bool:
+        """Trusted, below the cap: every update is audited."""
+        return 0 < self.credit < self.cap
+
     def reset(self) -> None:
-        """A mission's start: trusted (``start_searching`` False) or searching until the
-        network earns trust."""
-        self.recent.clear()
-        self.searching = self.start_searching and self.need_misses > 0
+        """A mission's start."""
+        self.credit = min(1, self.cap) if self.start == "network" else 0
         self.hits = 0
-        self.switches = 0
+
+    def grant(self) -> None:
+        """Full trust now (the benchmark times the network's path this way)."""
+        self.credit, self.hits = self.cap, 0
 
     def judge(self, miss: bool) -> None:
         """One trusted update's outcome."""
-        self.recent.append(miss)
-        if self.need_misses and sum(self.recent) >= self.need_misses:
-            self.searching, self.hits = True, 0
-            self.recent.clear()
-            self.switches += 1
+        self.credit = self.credit - 1 if miss else min(self.credit + 1, self.cap)
 
     def shadow(self, hit: bool) -> None:
         """One searching update's shadow judgement of the proposal."""
         self.hits = self.hits + 1 if hit else 0
         if self.hits >= self.need_hits:
-            self.searching, self.hits = False, 0
-            self.switches += 1
+            self.credit, self.hits = min(1, self.cap), 0
 
 
 class LearnedGovernor:
@@ -117,7 +124,7 @@ class LearnedGovernor:
         self.name = name
         self._z = np.empty((1, net.arch.n_in))
         lc = predictor.config.learned
-        self.trust = Trust(lc.trust_misses, lc.trust_window, lc.trust_hits, lc.trust_at_start == "search")
+        self.trust = Trust(lc.trust_credit, lc.trust_hits, lc.trust_at_start)
         #: None, or what a model flown on another scenario or side was trained for.
         self.foreign: str | None = None
         #: The model directory and weights digest flown (None for a network built in memory).
@@ -213,7 +220,9 @@ class LearnedGovernor:
             path = PATH_NN if index >= 0 else PATH_NN_BISECT if budget > 0 else PATH_KEEP
             stuck = index < 0 and tau == tau_prev   # every proposal failed and nothing was found
         elif not scheduled or lc.probe_budget == 0:
-            return tau_prev, PATH_KEEP, 0, None
+            if not trust.probation:
+                return tau_prev, PATH_KEEP, 0, None
+            tau, path, calls, cache, stuck = tau_prev, PATH_KEEP, 0, pred.cache(t), False
         else:
             cache = pred.cache(t)
             tau, calls = pred.bisect(x_d, t, tau_prev, 0.0, cache, lc.probe_budget)
@@ -221,7 +230,7 @@ class LearnedGovernor:
             stuck = False
             if tau != tau_prev:   # the network proposed no progress, and the probe found some
                 trust.judge(miss=True)
-        if (scheduled or stuck) and lc.audit_step > 0.0 and tau != 0.0:
+        if (scheduled or stuck or trust.probation) and lc.audit_step > 0.0 and tau != 0.0:
             # The audit: does the answer lag π*? One Verify audit_step of the way from it to 0;
             # when it passes, the network left that much progress behind (a miss), and the
             # audited shift, verified, is the answer. Also when every proposal failed and the
@@ -230,9 +239,14 @@ class LearnedGovernor:
             if audit != tau:
                 calls += 1
                 lags = pred.verify(x_d, t, audit, cache)
-                trust.judge(miss=lags)
                 if lags:
+                    trust.judge(miss=True)
                     tau, path = audit, PATH_AUDIT
+                elif path == PATH_NN and abs(tau) <= abs(tau_prev) * (1.0 - lc.audit_step):
+                    # No lag, after a proposal's step beyond the audit's reach: evidence of a
+                    # network that tracks π*. (No lag after a smaller step, a stall say, or
+                    # after a step the search found, is no evidence.)
+                    trust.judge(miss=False)
         return tau, path, calls, cache
 
     def would_pay(self, tau_c: float, tau_prev: float, tau_star: float) -> bool | None:
