@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 EXTRAS := ros,learn,report,dev
 
-.PHONY: install run test bench montecarlo results robustness controller-sweep models models-prev scenario-data scenario-models scenario-results clean
+.PHONY: install run test bench montecarlo results robustness controller-sweep models models-prev scenario-data scenario-models scenario-result scenario-results clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -124,3 +124,22 @@ scenario-models: $(SCENARIO_RUNS)/labels.parquet
 	  $(BIN)/cikan train $(SCENARIO_ARGS) --model $$f --like models/$$f --data $(SCENARIO_RUNS)/labels.parquet \
 	    --checkpoint-dir $(SCENARIO_RUNS)/checkpoints/$$f $(SCENARIO_TRAIN) || exit 1; \
 	done
+
+# Results per scenario and approach side (docs/results/scenarios/): the conventional TSG and every
+# model shipped for that scenario and side (keep rule), SCENARIO_RESULT_RUNS Monte Carlo runs each,
+# then the table. `make scenario-results` does every scenario and side; one with
+# `make scenario-result SCENARIO=leo APPROACH=ahead`.
+SCENARIO_RESULT_RUNS ?= 100
+SCENARIOS  := paper leo geo
+APPROACHES := behind ahead
+scenario-result: $(STAMP)
+	$(BIN)/cikan montecarlo $(SCENARIO_ARGS) --runs $(SCENARIO_RESULT_RUNS) --governor shipped --workers 2 \
+		--out runs/scenario-results/$(SCENARIO)-$(APPROACH)
+	$(BIN)/cikan report runs/scenario-results/$(SCENARIO)-$(APPROACH) --tables-only \
+		--out docs/results/scenarios/$(SCENARIO)-$(APPROACH) \
+		--title "Scenario $(SCENARIO), approach from $(APPROACH): the conventional TSG and the shipped models, $(SCENARIO_RESULT_RUNS) Monte Carlo runs"
+
+scenario-results: $(STAMP)
+	for s in $(SCENARIOS); do for a in $(APPROACHES); do \
+	  $(MAKE) scenario-result SCENARIO=$$s APPROACH=$$a || exit 1; \
+	done; done

@@ -146,6 +146,15 @@ def campaign_names() -> list[str]:
     return names + [f"{n}-prev" for n in LEARNED_NAMES if (MODELS_DIR / f"{n}-prev").is_dir()]
 
 
+def shipped_names(cfg: Config) -> list[str]:
+    """The conventional TSG and every learned family with a model for the configuration's
+    scenario and approach side (``scenario.models_dir``)."""
+    from .learn.modelfile import CARD, scenario_model_dir
+
+    return ["conventional"] + [n for n in LEARNED_NAMES if (scenario_model_dir(
+        cfg.scenario.models_dir, n, cfg.mission.approach) / CARD).is_file()]
+
+
 def split_rule(name: str) -> tuple[str, str | None]:
     """``"cikan@paper"`` -> ("cikan", "paper"): a learned governor with its update rule named
     (``learned.algorithm``); a name without a known rule suffix -> (name, None)."""

@@ -100,6 +100,7 @@ def test_decisions_follow_algorithm_1(paper_predictor) -> None:
     for gov_seed in (1, 2, 3):
         gov = _governor(predictor, Arch("gelu", 16, 3), gov_seed, math.log(3.0), 1.0)
         for x_d, x_c, t, tau_prev in states:
+            gov.trust.grant()
             rec = gov.update(x_d, x_c, t, tau_prev)
             feat = features_one(x_d, x_c, "vnb", np.empty(12))
             tau_c = quantise_shift(-math.exp(gov.net.forward_one(gov.net.normalise(feat))))
@@ -159,8 +160,9 @@ def _update_states(predictor, n: int = 8) -> list[tuple]:
 def test_decisions_follow_the_keep_rule(predictor, rho: float | None) -> None:
     """Replays the keep rule's pseudo-code (docs/learned_update_rule.md) with independent
     predictor calls, under the default settings and with learned.min_progress = rho."""
-    if rho is not None:
-        predictor = Predictor.from_config(predictor.config.replace(**{"learned.min_progress": rho}))
+    # The ladder itself: the network fully trusted, no audit (tests/test_trust.py has those).
+    predictor = Predictor.from_config(predictor.config.replace(
+        **{"learned.audit_step": 0.0, **({} if rho is None else {"learned.min_progress": rho})}))
     lc = predictor.config.learned
     assert lc.algorithm == "keep"
     snap = predictor.config.tsg.zero_snap_s
@@ -175,6 +177,7 @@ def test_decisions_follow_the_keep_rule(predictor, rho: float | None) -> None:
                                 zero_weights=True)
             else:
                 gov = _governor(predictor, Arch("gelu", 16, 3), gov_seed, log_mean, 1.0)
+            gov.trust.grant()
             rec = gov.update(x_d, x_c, t, tau_prev)
             feat = features_one(x_d, x_c, "vnb", np.empty(12))
             tau_c = quantise_shift(-math.exp(gov.net.forward_one(gov.net.normalise(feat))))

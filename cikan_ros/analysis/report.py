@@ -106,12 +106,14 @@ def _metrics_table(runs: list[RunData], metrics: list[dict[str, Any]]) -> str:
 
 
 def write_report(path: str | Path, out_dir: str | Path, cfg: Config | None = None,
-                 title: str | None = None, notes: str | None = None) -> Path:
+                 title: str | None = None, notes: str | None = None, figures: bool = True) -> Path:
     """Figures (PNG) and ``report.md`` for the runs at ``path``; returns the page's path.
 
-    ``notes`` (Markdown) is inserted after the tables, before the figures.
+    ``notes`` (Markdown) is inserted after the tables, before the figures; ``figures`` False
+    writes the tables only. The paper's Table 2 rows appear beside a campaign of the paper's
+    scenario from behind only.
     """
-    from .table import build_table, summary, to_csv, to_markdown
+    from .table import build_table, campaign_scenario, summary, to_csv, to_markdown
 
     kind, runs, metrics = load_runs(path, cfg)
     out = Path(out_dir)
@@ -121,15 +123,19 @@ def write_report(path: str | Path, out_dir: str | Path, cfg: Config | None = Non
     if kind == "montecarlo":
         govs = list(dict.fromkeys(r.governor for r in runs))
         drawn = [r for g in govs for r in [x for x in runs if x.governor == g][:MAX_DRAWN]]
-        figs = all_figures(drawn, out)
-        figs["fig3c_mean_tau"] = mean_tau(runs, out / "fig3c_mean_tau.png")
-        # Fig. 4: the run closest to the LoS boundary (the paper shows an extreme case).
         worst = min(range(len(runs)), key=lambda i: metrics[i].get("min_h1_margin") or 0.0)
-        figs["fig4_constraints"] = constraint_histories([runs[worst]], out / "fig4_constraints.png")
+        figs = all_figures(drawn, out) if figures else {}
+        if figures:
+            figs["fig3c_mean_tau"] = mean_tau(runs, out / "fig3c_mean_tau.png")
+            # Fig. 4: the run closest to the LoS boundary (the paper shows an extreme case).
+            figs["fig4_constraints"] = constraint_histories([runs[worst]], out / "fig4_constraints.png")
         rows = build_table(path)
-        (out / "table2.md").write_text(to_markdown(rows))
+        scenario, approach = campaign_scenario(path)
+        table = to_markdown(rows, paper_rows=(scenario, approach) == ("paper", "behind"))
+        (out / "table2.md").write_text(table)
         (out / "table2.csv").write_text(to_csv(rows))
-        lines += ["## Table 2", "", to_markdown(rows), "", "What it shows (generated from the table):", "",
+        lines += [f"Scenario `{scenario}`, approach from {approach}.", "",
+                  "## Table 2", "", table, "", "What it shows (generated from the table):", "",
                   summary(rows), "",
                   f"Per governor over its runs (the trajectory figures draw the first {MAX_DRAWN} runs of each; "
                   f"Fig. 4 shows run `{runs[worst].label}`, the one closest to the LoS boundary).", ""]
@@ -140,7 +146,7 @@ def write_report(path: str | Path, out_dir: str | Path, cfg: Config | None = Non
                          f"{s['delta_v_kmps_mean']:.4f} | {s['min_h1_margin']:.2e} |")
         lines.append("")
     else:
-        figs = all_figures(runs, out)
+        figs = all_figures(runs, out) if figures else {}
         lines += ["## Metrics", "", _metrics_table(runs, metrics), ""]
     if notes:
         lines += [notes.rstrip(), ""]
@@ -154,7 +160,7 @@ def write_report(path: str | Path, out_dir: str | Path, cfg: Config | None = Non
         "fig3e_speed": "Fig. 3e: relative speed",
         "fig4_constraints": "Fig. 4: constraint histories h1, h2, h3",
     }
-    lines += ["## Figures", ""]
+    lines += ["## Figures", ""] if figs else []
     for name, fpath in figs.items():
         lines += [f"### {captions.get(name, name)}", "", f"![{name}]({Path(fpath).name})", ""]
     page = out / "report.md"

@@ -84,7 +84,7 @@ def rmse_against_optimal(runs: list[tuple[dict[str, Any], dict[str, Any], Path]]
         states = update_states(cfg, a["t"], a["x_d"], a["x_c"], updates, active_only=False)
         err_active.append(errors_against_optimal(pred, states))
         err_zero.append(np.array([s.tau for s in states if not s.active]))
-        is_active = a["update_tau_prev"] < 0.0
+        is_active = (a["update_tau_prev"] != 0.0) & np.isfinite(a["update_tau_prev"])
         active += int(is_active.sum())
         accepted += int(np.sum(is_active & (a["update_path"] == PATH_NN)))
     e_active = np.concatenate(err_active) if err_active else np.empty(0)
@@ -92,12 +92,27 @@ def rmse_against_optimal(runs: list[tuple[dict[str, Any], dict[str, Any], Path]]
     return rmse(e_all), rmse(e_active), (accepted / active if active else math.nan)
 
 
-def _card(name: str) -> dict[str, Any] | None:
-    from ..learn.modelfile import MODELS_DIR
+def _card(name: str, flat: dict[str, Any] | None = None) -> dict[str, Any] | None:
+    """The model card of governor ``name`` as the campaign (configuration ``flat``) flew it: a
+    family resolves to its scenario's model for the approach side."""
+    from ..learn.arch import FAMILIES
+    from ..learn.modelfile import MODELS_DIR, scenario_model_dir
 
-    path = Path(name) if "/" in name else MODELS_DIR / name
+    if name in FAMILIES and flat is not None:
+        cfg = config_from_flat(flat)
+        path = scenario_model_dir(cfg.scenario.models_dir, name, cfg.mission.approach)
+    else:
+        path = Path(name) if "/" in name else MODELS_DIR / name
     card = path / "card.json" if path.is_dir() else path.with_name("card.json")
     return json.loads(card.read_text()) if card.exists() else None
+
+
+def campaign_scenario(mc_dir: str | Path) -> tuple[str, str]:
+    """(scenario name, approach side) a Monte Carlo campaign flew (its first stored run)."""
+    for js in sorted(Path(mc_dir).glob("*/seed_*.json")):
+        cfg = config_from_flat(json.loads(js.read_text())["config"])
+        return cfg.scenario.name, cfg.mission.approach
+    return "paper", "behind"
 
 
 def build_table(mc_dir: str | Path, with_rmse: bool = True) -> list[dict[str, Any]]:
@@ -135,7 +150,7 @@ def build_table(mc_dir: str | Path, with_rmse: bool = True) -> list[dict[str, An
                       if int(m["seed"]) in conv_dv]
             if len(paired) >= 2:
                 row["delta_v_vs_conventional_se"] = paired_ratio(*zip(*paired)).se
-            card = _card(base)
+            card = _card(base, runs[0][1] if runs else None)
             if card is not None:
                 arch = card.get("architecture", {})
                 row.update(architecture=_arch_label(arch),
@@ -170,11 +185,12 @@ def _fmt(v: Any, spec: str) -> str:
     return format(v, spec)
 
 
-def to_markdown(rows: list[dict[str, Any]]) -> str:
+def to_markdown(rows: list[dict[str, Any]], paper_rows: bool = True) -> str:
     """Our Table 2 (the paper's all-updates timing, active-phase timing beside it), the paper's
     row under each family; learned rows name their update rule (keep: default, paper: the
     paper's Algorithm 1). ΔV and t(τ=0) also relative to the conventional TSG of the campaign,
-    ΔV with the standard error of that paired ratio (``analysis.paired``)."""
+    ΔV with the standard error of that paired ratio (``analysis.paired``). ``paper_rows``
+    False: without the paper's rows (another scenario or approach side)."""
     head = ("| model | rule | params (trainable) | complexity n²ℓ(G+3) | L_train, L_val ×1e-3 "
             "| RMSE τ (s) all / active | update ms mean / worst | speed-up mean / worst "
             "| active ms mean / worst | active speed-up mean / worst | ΔV (km/s) | t(τ=0) mean (s) "
@@ -203,7 +219,7 @@ def to_markdown(rows: list[dict[str, Any]]) -> str:
             f"| {r['successes']}/{r['runs']} | {r['violations']} | {_fmt(r['nn_accept_rate'], '.3f')} |")
         fam = family_of(base)
         last_of_family = i + 1 == len(rows) or family_of(split_rule(rows[i + 1]["model"])[0]) != fam
-        if fam in PAPER and last_of_family:
+        if paper_rows and fam in PAPER and last_of_family:
             cx, lt, lv, rmse_p, tm, tw, dv = PAPER[fam]
             lines.append(
                 f"| *paper: {PAPER_NAMES[fam]}* | {'-' if fam == 'conventional' else 'paper'} | - | {cx} "

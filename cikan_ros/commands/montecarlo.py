@@ -14,10 +14,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="Fly --runs missions from seeded Monte Carlo starts (seeds S .. S+N-1) "
                                    "for each governor; keep per-run results in --out.")
     p.add_argument("--runs", type=int, default=100, help="runs per governor (paper: 100)")
-    p.add_argument("--governor", default="conventional", metavar="NAME|PATH|all",
+    p.add_argument("--governor", default="conventional", metavar="NAME|PATH|all|shipped",
                    help="a governor name or model path (NAME@paper: under the paper's Algorithm 1), "
-                        "a comma-separated list, or 'all' (conventional, the five families under "
-                        "the keep rule and under the paper's rule)")
+                        "a comma-separated list, 'all' (conventional, the five families under "
+                        "the keep rule and under the paper's rule) or 'shipped' (conventional and "
+                        "every family with a model for the scenario and approach side)")
     p.add_argument("--seed", type=seed_arg, default=1, help="seed of the first run (default 1)")
     p.add_argument("--workers", type=int, default=1, help="local worker processes")
     p.add_argument("--dask", metavar="ADDRESS", default=None, help="Dask scheduler, e.g. tcp://host:8786")
@@ -28,11 +29,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..governor import campaign_names
+    from ..governor import campaign_names, shipped_names
     from ..montecarlo import markdown_summary, run_campaign, summarise
 
-    governors = campaign_names() if args.governor == "all" else args.governor.split(",")
     cfg = config_from_args(args)
+    governors = (campaign_names() if args.governor == "all" else shipped_names(cfg)
+                 if args.governor == "shipped" else args.governor.split(","))
     results = run_campaign(cfg, governors, args.runs, args.seed, args.out, args.workers, args.dask)
     summaries = {g: summarise(runs) for g, runs in results.items()}
     out = Path(args.out)

@@ -21,6 +21,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="with --robustness: the page's and figure's file name (NAME.md, NAME.png)")
     p.add_argument("--config", default=None, metavar="PATH",
                    help="configuration of bags that do not carry their own (default: the shipped one)")
+    p.add_argument("--scenario", metavar="NAME|FILE", default=None,
+                   help="scenario of bags that do not carry their configuration (paper, leo, geo "
+                        "or a YAML file; a campaign's own configuration names its scenario)")
+    p.add_argument("--tables-only", action="store_true", help="write the tables, no figures")
     p.set_defaults(func=run)
 
 
@@ -28,7 +32,10 @@ def run(args: argparse.Namespace) -> int:
     from ..analysis.report import write_report
     from ..config import load_config
 
-    cfg = load_config(args.config) if args.config else None
+    from ..config import scenario_overrides
+
+    over = scenario_overrides(args.scenario) if args.scenario else {}
+    cfg = load_config(args.config, **over) if (args.config or over) else None
     notes = None
     if args.notes:
         from pathlib import Path
@@ -48,6 +55,6 @@ def run(args: argparse.Namespace) -> int:
 
         page = write_robustness(args.source, args.out, notes, args.title, args.name)
     else:
-        page = write_report(args.source, args.out, cfg, args.title, notes)
+        page = write_report(args.source, args.out, cfg, args.title, notes, figures=not args.tables_only)
     print(f"report: {page}")
     return 0

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from ..learn.features import FEATURE_SETS
-from . import dumps, seed_arg
+from . import add_config_args, config_from_args, dumps, seed_arg
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -26,6 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=seed_arg, default=None, help="sampler seed")
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     p.add_argument("--json", action="store_true", help="print the study summary as JSON")
+    add_config_args(p)
     p.set_defaults(func=run)
 
 
@@ -41,6 +42,17 @@ def run(args: argparse.Namespace) -> int:
     if args.storage.startswith("sqlite:///"):
         Path(args.storage[len("sqlite:///"):]).parent.mkdir(parents=True, exist_ok=True)
     data = load_data(args.data, args.features)
+    from ..learn.modelfile import card_scenario
+
+    cfg = config_from_args(args)
+    want = {"name": cfg.scenario.name, "approach": cfg.mission.approach}
+    if card_scenario(data.meta) != want:
+        raise DatasetError(f"dataset {args.data} is of scenario {card_scenario(data.meta)}, not {want}: "
+                           "give the dataset's --scenario and --set mission.approach")
+    if args.study_name is None and want != {"name": "paper", "approach": "behind"}:
+        from ..learn.tune import study_name_for
+
+        args.study_name = f"{study_name_for(args.model, args.features)}-{want['name']}-{want['approach']}"
     summary = run_tune(args.model, data, args.trials, args.storage, args.study_name, args.epochs,
                        args.max_train, args.trial_minutes, args.seed, args.threads, args.timeout)
     if args.json:

@@ -105,7 +105,7 @@ class Trust:
 
     def judge(self, miss: bool) -> None:
         """One trusted update's outcome."""
-        self.credit = self.credit - 1 if miss else min(self.credit + 1, self.cap)
+        self.credit = max(self.credit - 1, 0) if miss else min(self.credit + 1, self.cap)
 
     def shadow(self, hit: bool) -> None:
         """One searching update's shadow judgement of the proposal."""
@@ -219,17 +219,18 @@ class LearnedGovernor:
             tau, index, calls = pred.first_feasible(x_d, t, candidates, tau_prev, budget, cache)
             path = PATH_NN if index >= 0 else PATH_NN_BISECT if budget > 0 else PATH_KEEP
             stuck = index < 0 and tau == tau_prev   # every proposal failed and nothing was found
+            miss: bool | None = None
         elif not scheduled or lc.probe_budget == 0:
             if not trust.probation:
                 return tau_prev, PATH_KEEP, 0, None
-            tau, path, calls, cache, stuck = tau_prev, PATH_KEEP, 0, pred.cache(t), False
+            tau, path, calls, cache, stuck, miss = tau_prev, PATH_KEEP, 0, pred.cache(t), False, None
         else:
             cache = pred.cache(t)
             tau, calls = pred.bisect(x_d, t, tau_prev, 0.0, cache, lc.probe_budget)
             path = PATH_PROBE
             stuck = False
-            if tau != tau_prev:   # the network proposed no progress, and the probe found some
-                trust.judge(miss=True)
+            # The network proposed no progress, and the probe found some: a miss.
+            miss = True if tau != tau_prev else None
         if (scheduled or stuck or trust.probation) and lc.audit_step > 0.0 and tau != 0.0:
             # The audit: does the answer lag π*? One Verify audit_step of the way from it to 0;
             # when it passes, the network left that much progress behind (a miss), and the
@@ -240,13 +241,15 @@ class LearnedGovernor:
                 calls += 1
                 lags = pred.verify(x_d, t, audit, cache)
                 if lags:
-                    trust.judge(miss=True)
+                    miss = True
                     tau, path = audit, PATH_AUDIT
                 elif path == PATH_NN and abs(tau) <= abs(tau_prev) * (1.0 - lc.audit_step):
                     # No lag, after a proposal's step beyond the audit's reach: evidence of a
                     # network that tracks π*. (No lag after a smaller step, a stall say, or
                     # after a step the search found, is no evidence.)
-                    trust.judge(miss=False)
+                    miss = False
+        if miss is not None:  # one judgement per update
+            trust.judge(miss)
         return tau, path, calls, cache
 
     def would_pay(self, tau_c: float, tau_prev: float, tau_star: float) -> bool | None:
