@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 EXTRAS := ros,learn,report,dev
 
-.PHONY: install run test bench montecarlo results robustness controller-sweep models models-prev scenario-data scenario-models scenario-result scenario-results clean
+.PHONY: install run test bench montecarlo results robustness controller-sweep models models-prev scenario-data scenario-models scenario-result scenario-results bad-networks clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -143,3 +143,19 @@ scenario-results: $(STAMP)
 	for s in $(SCENARIOS); do for a in $(APPROACHES); do \
 	  $(MAKE) scenario-result SCENARIO=$$s APPROACH=$$a || exit 1; \
 	done; done
+
+# Networks that do not fit (docs/learned_update_rule.md): a random-weight CIKAN (the shipped
+# architecture, untrained) and a one-epoch ReLU (8 wide, 2 layers) on 3,000 labels, flown under
+# the keep rule on the Table 2 starts beside the conventional TSG and the shipped CIKAN and ReLU;
+# the table goes to docs/results/bad_networks/.
+BAD := runs/bad-networks
+bad-networks: $(STAMP)
+	$(BIN)/cikan dataset --labels 3000 --out $(BAD)/labels3k.parquet --seed 7 --workers 2
+	$(BIN)/cikan train --model cikan --like models/cikan --epochs 0 --data $(BAD)/labels3k.parquet \
+		--out $(BAD)/random-cikan --checkpoint-dir $(BAD)/checkpoints/random-cikan --quiet
+	$(BIN)/cikan train --model relu --width 8 --layers 2 --epochs 1 --data $(BAD)/labels3k.parquet \
+		--out $(BAD)/barely-relu --checkpoint-dir $(BAD)/checkpoints/barely-relu --quiet
+	$(BIN)/cikan montecarlo --runs $(ROBUST_RUNS) --workers 2 --out $(BAD)/mc \
+		--governor conventional,cikan,relu,$(BAD)/random-cikan,$(BAD)/barely-relu
+	$(BIN)/cikan report $(BAD)/mc --tables-only --out docs/results/bad_networks \
+		--title "Networks that do not fit, under the keep rule: Table 2 starts, $(ROBUST_RUNS) runs"

@@ -57,11 +57,14 @@ def share_files() -> list[tuple[str, list[str]]]:
            (f"{share}/config", sorted(str(p.relative_to(HERE)) for p in (HERE / "config").glob("*.yaml"))),
            (f"{share}/config/truth", sorted(str(p.relative_to(HERE))
                                             for p in (HERE / "config" / "truth").glob("*.yaml"))),
+           (f"{share}/config/scenarios", sorted(str(p.relative_to(HERE))
+                                                for p in (HERE / "config" / "scenarios").glob("*.yaml"))),
            (f"{share}/launch", sorted(str(p.relative_to(HERE)) for p in (HERE / "launch").glob("*.launch.*"))),
            (f"{share}/models", ["models/README.md"])]
-    for family in sorted(p for p in (HERE / "models").iterdir() if p.is_dir()):
-        files = [str((family / name).relative_to(HERE)) for name in ("model.safetensors", "card.json")]
-        out.append((f"{share}/models/{family.name}", files))
+    # Every model directory (a card beside its weights), the scenarios' subdirectories included.
+    for model in sorted(p.parent for p in (HERE / "models").rglob("card.json")):
+        files = [str((model / name).relative_to(HERE)) for name in ("model.safetensors", "card.json")]
+        out.append((f"{share}/{model.relative_to(HERE).as_posix()}", files))
     return [(d, files) for d, files in out if files]
 
 

@@ -22,7 +22,7 @@ from ros_helpers import isolated_ros, rosbags_messages
 ROOT = Path(__file__).resolve().parent.parent
 COLCON = Path(sys.executable).parent / "colcon"
 NODES = ("sim_node", "governor_node", "controller_node", "recorder_node")
-FAMILIES = sorted(p.name for p in (ROOT / "models").iterdir() if p.is_dir())
+FAMILIES = sorted(p.parent.relative_to(ROOT / "models").as_posix() for p in (ROOT / "models").rglob("card.json"))
 
 
 def build(ws: Path, *options: str) -> Path:

@@ -63,18 +63,20 @@ def peers_as_set(params: dict[str, Any]) -> dict[str, Any]:
 
 
 def test_launch_file_has_the_graphs_nodes_parameters_and_arguments() -> None:
-    given = {"governor": "cikan", "seed": "3", "bag": "bags/cikan3"}
+    given = {"governor": "cikan", "seed": "3", "bag": "bags/cikan3", "scenario": "leo", "approach": "ahead"}
     declared, nodes = evaluate(given)
-    assert set(declared) == set(graph_spec.ARGUMENTS) == {"governor", "seed", "bag"}
+    assert set(declared) == set(graph_spec.ARGUMENTS) == {"governor", "seed", "bag", "scenario", "approach"}
     assert all(a.get("description") for a in declared.values())
     assert [n["exec"] for n in nodes] == [n.executable for n in graph_spec.NODES]
-    expected = graph_spec.node_parameters(governor="cikan", seed=3, bag="bags/cikan3")
+    expected = graph_spec.node_parameters(governor="cikan", seed=3, bag="bags/cikan3", approach="ahead")
     for n in nodes:
         assert n["pkg"] == "cikan_ros"
-        assert n["files"] == ["SHARE/config/cikan.yaml"]            # the mission configuration
+        # the mission configuration, then the scenario's file over it
+        assert n["files"] == ["SHARE/config/cikan.yaml", "SHARE/config/scenarios/leo.yaml"]
         assert peers_as_set(n["params"]) == peers_as_set(expected), n["exec"]
         assert n["on_exit"] == ("shutdown" if n["exec"] == "sim_node" else None)  # the sim ends it
-    assert set(expected) <= set(node_defaults())                  # every one is a declared parameter
+    # every one is a declared parameter: a node parameter, or one of the mission configuration
+    assert set(expected) <= set(node_defaults()) | set(load_config().flat())
 
 
 def test_launch_file_defaults_are_the_launchers() -> None:

@@ -30,15 +30,18 @@ NODES: tuple[GraphNode, ...] = (
 
 #: Arguments of a mission and their defaults: seed -1 is the nominal start; the bag is a new
 #: directory ``bags/<UTC start time>_<governor>`` (``{utc}`` in ``recorder.bag`` is that time).
-ARGUMENTS: dict[str, Any] = {"governor": "conventional", "seed": -1, "bag": "bags/{utc}_{governor}"}
+ARGUMENTS: dict[str, Any] = {"governor": "conventional", "seed": -1, "scenario": "paper",
+                             "approach": "behind", "bag": "bags/{utc}_{governor}"}
 #: The format of ``{utc}``.
 UTC_FORMAT = "%Y%m%dT%H%M%SZ"
 
 
 def node_parameters(governor: str = "conventional", seed: int | None = -1, bag: str | os.PathLike = "",
-                    stop_on_dock: bool = False) -> dict[str, Any]:
-    """The node parameters every node of the graph gets (beside the mission configuration);
-    ``graph.peers`` makes each node wait for all the others, the recorder included."""
+                    stop_on_dock: bool = False, approach: str = "behind") -> dict[str, Any]:
+    """The node parameters every node of the graph gets (beside the mission configuration and
+    its scenario file); ``graph.peers`` makes each node wait for all the others, the recorder
+    included."""
     return {"governor.name": str(governor), "sim.seed": -1 if seed is None else int(seed),
+            "mission.approach": str(approach),
             "sim.stop_on_dock": bool(stop_on_dock), "recorder.bag": str(bag),
             "graph.peers": [n.name for n in NODES]}

@@ -230,6 +230,7 @@ def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | Non
     workdir = Path(tempfile.mkdtemp(prefix="cikan_ros_"))
     params = {"governor.name": governor, "sim.seed": -1 if seed is None else int(seed),
               "sim.stop_on_dock": bool(stop_on_dock), "recorder.bag": str(bag_path.resolve()),
+              "mission.approach": cfg.mission.approach,
               "graph.peers": ["sim", "governor", "controller", "recorder"], **(node_params or {})}
     graph = Graph(workdir, ros_environment(pick_domain_id(), workdir / "ros_log"),
                   write_params(workdir / "params.yaml", cfg, params), commands=commands)

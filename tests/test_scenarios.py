@@ -1,0 +1,175 @@
+"""Scenarios and both approach sides (docs/scenarios.md): the scenario files, the docking port's
+cone on either side (golden), the sign-agnostic searches against Verify itself (golden), whole
+missions from ahead (contract), models per scenario and side, and bad input (one line, exit 2)."""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from cikan_ros.cli import main
+from cikan_ros.config import load_config, scenario_names, scenario_overrides
+from cikan_ros.constraints import h1_line_of_sight
+from cikan_ros.errors import ConfigError
+from cikan_ros.governor import ConventionalGovernor, make_governor
+from cikan_ros.learn.errors import ModelFileError
+from cikan_ros.learn.modelfile import MODELS_DIR, scenario_model_dir
+from cikan_ros.mission import nominal_shift, nominal_start, run_mission, sample_start
+from cikan_ros.tsg import Predictor
+
+COS20 = math.cos(math.radians(20.0))
+
+
+def test_shipped_scenarios_load_and_name_themselves() -> None:
+    assert {"paper", "leo", "geo"} <= set(scenario_names())
+    for name in scenario_names():
+        cfg = load_config(**scenario_overrides(name))
+        assert cfg.scenario.name == name
+        assert cfg.scenario.description
+    # "paper" is config/cikan.yaml itself.
+    assert load_config(**scenario_overrides("paper")) == load_config()
+
+
+def test_bad_scenarios_are_refused_naming_the_problem(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="unknown scenario 'mars'.*paper"):
+        scenario_overrides("mars")
+    f = tmp_path / "s.yaml"
+    f.write_text("/**:\n  ros__parameters:\n    orbit:\n      a_kmm: 7000.0\n")
+    with pytest.raises(ConfigError, match=r"s\.yaml.*unknown configuration parameter 'orbit\.a_kmm'"):
+        scenario_overrides(str(f))
+    f.write_text("/**:\n  ros__parameters:\n    orbit:\n      e: 1.5\n")
+    with pytest.raises(ConfigError, match=r"s\.yaml.*orbit\.e = 1\.5"):
+        scenario_overrides(str(f))
+    f.write_text("/**:\n  ros__parameters:\n    truth:\n      scale: 2.0\n")
+    with pytest.raises(ConfigError, match="does not choose the truth"):
+        scenario_overrides(str(f))
+    with pytest.raises(ConfigError, match="mission.approach"):
+        load_config(**{"mission.approach": "sideways"})
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["mission", "--offline", "--scenario", "mars"], "unknown scenario 'mars'"),
+    (["mission", "--offline", "--set", "mission.approach=left"], "mission.approach"),
+    (["mission", "--offline", "--governor", "cikan", "--set", "mission.approach=ahead",
+      "--set", "scenario.models_dir=/nonexistent"], "no cikan model for scenario 'paper', approach 'ahead'"),
+    (["mission", "--offline", "--governor", str(MODELS_DIR / "cikan"), "--set", "mission.approach=ahead"],
+     "trained for scenario 'paper', approach 'behind'"),
+])
+def test_bad_input_is_one_line_and_exit_code_2(argv: list[str], needle: str, capsys) -> None:
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and needle in err and "Traceback" not in err
+
+
+def test_h1_port_faces_the_approach() -> None:
+    """h1 = a v_c.p + cos(a) |v_c| |p| with port sign a = +1 behind, -1 ahead: a deputy 2 km
+    along -v_c is inside the cone from behind (h1 = |v|2(cos20 - 1) < 0) and outside it from
+    ahead (h1 = |v|2(1 + cos20) > 0), and the other way round along +v_c."""
+    cfg = load_config()
+    x_c = np.array([7000.0, 0.0, 0.0, 0.0, 7.5, 0.0])
+    vn = 7.5
+    behind = x_c.copy()
+    behind[1] -= 2.0
+    ahead = x_c.copy()
+    ahead[1] += 2.0
+    assert h1_line_of_sight(behind, x_c, cfg.constraints, -1)[0] == pytest.approx(vn * 2 * (COS20 - 1))
+    assert h1_line_of_sight(behind, x_c, cfg.constraints, +1)[0] == pytest.approx(vn * 2 * (COS20 + 1))
+    assert h1_line_of_sight(ahead, x_c, cfg.constraints, +1)[0] == pytest.approx(vn * 2 * (COS20 - 1))
+    assert h1_line_of_sight(ahead, x_c, cfg.constraints, -1)[0] == pytest.approx(vn * 2 * (COS20 + 1))
+
+
+@pytest.fixture(scope="module")
+def ahead() -> Predictor:
+    return Predictor.from_config(load_config(**{"mission.approach": "ahead"}))
+
+
+def test_nominal_start_ahead_is_the_chief_orbit_point_d_ahead(ahead: Predictor) -> None:
+    """tau_nom > 0 with |x_c(tau_nom) - x_c(0)| = D (Kepler motion), the mirror of behind."""
+    tau = nominal_shift(ahead)
+    assert tau > 0
+    d = np.linalg.norm(ahead.orbit.state(tau)[:3] - ahead.orbit.state(0.0)[:3])
+    assert d == pytest.approx(ahead.config.mission.nominal_distance_km, rel=1e-10)
+    np.testing.assert_array_equal(nominal_start(ahead), ahead.orbit.state(tau))
+
+
+def test_searches_ahead_agree_with_verify(ahead: Predictor) -> None:
+    """First-instant search and pi* ahead of the chief, checked against Verify itself: the
+    answer passes, and the shift one tolerance closer to 0 fails (the bisection's bracket)."""
+    x0 = sample_start(ahead, 3)
+    tau0, _ = ahead.initial_shift(x0, 0.0)
+    assert 0.0 < tau0 <= ahead.config.tsg.initial_window_s
+    assert ahead.verify(x0, 0.0, tau0)
+    res = run_mission(ConventionalGovernor(ahead), x0, 3)
+    checked = 0
+    for u in res.updates:
+        if not u.active or u.tau_s in (0.0, u.tau_prev):
+            continue
+        step = round(u.k * 6)
+        x = res.x_d[step]
+        t = float(res.t[step])
+        assert ahead.verify(x, t, u.tau_s)
+        assert not ahead.verify(x, t, u.tau_s - ahead.config.tsg.tolerance_s)
+        checked += 1
+        if checked == 5:
+            break
+    assert checked
+
+
+@settings(max_examples=25, deadline=None)
+@given(tau_prev=st.floats(0.5, 50.0), ratio=st.floats(0.0, 1.5))
+def test_keep_rule_candidates_are_mirrored(tau_prev: float, ratio: float) -> None:
+    """The ladder ahead is the ladder behind with every shift negated (one implementation)."""
+    from tests.test_trust import _constant
+
+    cfg = load_config()
+    behind_gov = _constant(_predictor(cfg, "behind"), 1.0)
+    ahead_gov = _constant(_predictor(cfg, "ahead"), 1.0)
+    tau_c = ratio * tau_prev
+    assert ahead_gov.candidates(tau_c, tau_prev) == [-c for c in behind_gov.candidates(-tau_c, -tau_prev)]
+
+
+_PREDICTORS: dict[str, Predictor] = {}
+
+
+def _predictor(cfg, approach: str) -> Predictor:
+    if approach not in _PREDICTORS:
+        _PREDICTORS[approach] = Predictor.from_config(cfg.replace(**{"mission.approach": approach}))
+    return _PREDICTORS[approach]
+
+
+@pytest.mark.parametrize("scenario", ["paper", "leo"])
+def test_conventional_docks_from_ahead(scenario: str) -> None:
+    """From ahead, on the paper's orbit and in LEO: 0 violations (h1 with the port facing
+    forward), docked, tau >= 0 all along and 0 at the end."""
+    cfg = load_config(**scenario_overrides(scenario), **{"mission.approach": "ahead"})
+    pred = Predictor.from_config(cfg)
+    res = run_mission(ConventionalGovernor(pred), sample_start(pred, 2), 2)
+    m = res.metrics()
+    assert m["violations"] == 0 and m["success"], m
+    assert np.all(res.tau[np.isfinite(res.tau)] >= 0.0)
+    assert res.tau[-1] == 0.0
+
+
+def test_models_are_per_scenario_and_side(tmp_path: Path, capsys) -> None:
+    """A family resolves to <models_dir>/<family>[-ahead]; a model whose card names another
+    scenario or side is refused unless learned.foreign_model, and then the mission says so."""
+    cfg = load_config(**{"scenario.models_dir": str(tmp_path), "mission.approach": "ahead"})
+    assert scenario_model_dir(str(tmp_path), "cikan", "ahead") == tmp_path / "cikan-ahead"
+    shutil.copytree(MODELS_DIR / "cikan", tmp_path / "cikan-ahead")   # a behind model, misplaced
+    with pytest.raises(ModelFileError, match="trained for scenario 'paper', approach 'behind'"):
+        make_governor("cikan", cfg)
+    gov = make_governor("cikan", cfg.replace(**{"learned.foreign_model": True}))
+    assert gov.foreign == "trained for scenario 'paper', approach 'behind'"
+    assert main(["mission", "--offline", "--json", "--seed", "1", "--governor", "cikan",
+                 "--set", f"scenario.models_dir={tmp_path}", "--set", "mission.approach=ahead",
+                 "--set", "learned.foreign_model=true"]) == 0
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert out["foreign_model"] == "trained for scenario 'paper', approach 'behind'"
+    assert out["violations"] == 0 and out["success"]
