@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 EXTRAS := ros,learn,report,dev
 
-.PHONY: install run test bench montecarlo results robustness controller-sweep models models-prev scenario-data scenario-models scenario-result scenario-results bad-networks clean
+.PHONY: install run test bench montecarlo results robustness controller-sweep models models-prev scenario-data scenario-models scenario-result scenario-results scenario-bench bad-networks clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -159,3 +159,13 @@ bad-networks: $(STAMP)
 		--governor conventional,cikan,relu,$(BAD)/random-cikan,$(BAD)/barely-relu
 	$(BIN)/cikan report $(BAD)/mc --tables-only --out docs/results/bad_networks \
 		--title "Networks that do not fit, under the keep rule: Table 2 starts, $(ROBUST_RUNS) runs"
+
+# cikan bench per scenario and side (the JSON of each in docs/results/scenarios/bench/):
+# BENCH_MISSIONS missions' update states each (GEO's 24-h missions have ~1,000 active updates).
+BENCH_MISSIONS ?= 5
+scenario-bench: $(STAMP)
+	mkdir -p docs/results/scenarios/bench
+	for s in $(SCENARIOS); do for a in $(APPROACHES); do \
+	  $(BIN)/cikan bench --scenario $$s --set mission.approach=$$a --missions $(BENCH_MISSIONS) --json \
+	    > docs/results/scenarios/bench/$$s-$$a.json || exit 1; \
+	done; done
