@@ -161,15 +161,16 @@ def sim_steps(msgs: dict[str, list[tuple[int, Any]]]) -> dict[int, dict[str, str
 
 
 def independent_check(x_d: np.ndarray, x_c: np.ndarray, alpha_deg: float = 20.0,
-                      gamma=(5.0, 20.0, 1e-3)) -> tuple[float, float]:
-    """Worst normalised h1 and worst h3 (SPEC §4) computed here with numpy, not the library."""
+                      gamma=(5.0, 20.0, 1e-3), port: float = 1.0) -> tuple[float, float]:
+    """Worst normalised h1 and worst h3 (SPEC §4) computed here with numpy, not the library;
+    ``port`` +1: the docking port faces -v_c (approach from behind), -1: +v_c (from ahead)."""
     p = x_d[:, :3] - x_c[:, :3]
     v = x_d[:, 3:] - x_c[:, 3:]
     vc = x_c[:, 3:]
     pn = np.linalg.norm(p, axis=1)
     vcn = np.linalg.norm(vc, axis=1)
     ok = pn > 1e-3
-    h1n = (np.sum(vc * p, axis=1)[ok] + np.cos(np.radians(alpha_deg)) * vcn[ok] * pn[ok]) / (vcn[ok] * pn[ok])
+    h1n = (port * np.sum(vc * p, axis=1)[ok] + np.cos(np.radians(alpha_deg)) * vcn[ok] * pn[ok]) / (vcn[ok] * pn[ok])
     near = pn <= gamma[0]
     h3 = np.linalg.norm(v, axis=1)[near] - gamma[1] * pn[near] - gamma[2]
     return float(h1n.max()) if h1n.size else -np.inf, float(h3.max()) if h3.size else -np.inf

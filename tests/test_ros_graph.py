@@ -112,33 +112,42 @@ def test_bag_opens_with_both_readers_and_counts_match(conventional: tuple[dict, 
         assert ch.metadata["topic_type_hash"] == topic_meta["type_description_hash"] == hashes[0]["hash_string"]
 
 
-def _learned_mission(name: str, tmp_path: Path) -> None:
-    if not (MODELS / name).exists():
-        pytest.skip(f"no shipped model models/{name}")
+def _learned_mission(name: str, tmp_path: Path, scenario: str = "paper", approach: str = "behind") -> None:
+    from cikan_ros.config import scenario_overrides
+    from cikan_ros.learn.modelfile import scenario_model_dir
+
+    cfg = load_config(**scenario_overrides(scenario), **{"mission.approach": approach})
+    if not scenario_model_dir(cfg.scenario.models_dir, name, approach).exists():
+        pytest.skip(f"no shipped model {name} for scenario {scenario}, approach {approach}")
     bag = tmp_path / "bag"
-    metrics = run_ros_mission(load_config(), governor=name, bag=bag)
+    metrics = run_ros_mission(cfg, governor=name, bag=bag)
     msgs = rosbags_messages(bag)
     _, x_d = states(msgs, "/deputy/odom")
     _, x_c = states(msgs, "/chief/odom")
     rel = x_d[-1] - x_c[-1]
     assert np.linalg.norm(rel[:3]) < 1e-3 and np.linalg.norm(rel[3:]) < 1e-6
-    h1n, h3 = independent_check(x_d, x_c)
+    c = cfg.constraints
+    h1n, h3 = independent_check(x_d, x_c, c.los_half_angle_deg, (c.gamma1_km, c.gamma2_per_s, c.gamma3_kmps),
+                                port=-cfg.side)
     assert h1n <= 1e-9 and h3 <= 1e-9
     paths = {m.source for _, m in msgs["/tsg/time_shift"]}
     assert paths & {"nn", "nn+bisect"}, paths      # the network was consulted
     failed = [st.message for _, arr in msgs["/diagnostics"] for st in arr.status if st.level >= 2]
     assert not failed
     assert metrics["governor"] == name and metrics["success"]
-    cfg = load_config()                            # the same governor offline: the same shifts
+    # the same governor offline: the same shifts
     gov = make_governor(name, cfg, cached_predictor(cfg))
     offline = run_mission(gov, nominal_start(gov.predictor))
     stamps, _ = states(msgs, "/deputy/odom")
     np.testing.assert_array_equal(tau_history(msgs, len(stamps), stamps), offline.tau)
 
 
-@pytest.mark.parametrize("name", ["cikan", "relu"])
-def test_learned_governor_mission(name: str, ros_env: int, tmp_path: Path) -> None:
-    _learned_mission(name, tmp_path)
+@pytest.mark.parametrize("name, scenario, approach", [("cikan", "paper", "behind"),
+                                                       ("cikan", "leo", "ahead")])
+def test_learned_governor_mission(name: str, scenario: str, approach: str, ros_env: int, tmp_path: Path) -> None:
+    """A learned governor as the ROS graph (`cikan mission --scenario S --set mission.approach=A
+    --governor NAME`): docked, no violation by an independent check, the same shifts as offline."""
+    _learned_mission(name, tmp_path, scenario, approach)
 
 
 @pytest.mark.slow
