@@ -92,10 +92,10 @@ prev-%: tune-%
 		--out models/$*-prev $(TRAIN_ARGS)
 
 models: $(addprefix train-,$(FAMILIES))
-	$(BIN)/cikan models --data $(DATA) --out models/README.md
+	$(BIN)/cikan models --data $(DATA) $(wildcard runs/scenarios/*/labels.parquet) --out models/README.md
 
 models-prev: $(addprefix prev-,$(FAMILIES))
-	$(BIN)/cikan models --data $(DATA) --out models/README.md
+	$(BIN)/cikan models --data $(DATA) $(wildcard runs/scenarios/*/labels.parquet) --out models/README.md
 
 clean:
 	rm -rf $(VENV) build *.egg-info

@@ -14,7 +14,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="Print the table of every model directory under models/ from "
                                    "its card and, with --data, the loss by |tau*| band and by "
                                    "hold/move update on one split of a dataset.")
-    p.add_argument("--data", metavar="PATH", default=None, help="dataset (Parquet) for the breakdown")
+    p.add_argument("--data", metavar="PATH", default=None, nargs="+",
+                   help="datasets (Parquet) for the breakdown, one table each for the models of "
+                        "its scenario and side")
     p.add_argument("--split", default="val", choices=("train", "val", "test"))
     p.add_argument("--out", metavar="PATH", default=None,
                    help="write the whole page (introduction from docs/models_intro.md + tables)")

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from .errors import ModelFileError
-from .modelfile import MODELS_DIR, LoadedModel, load_model
+from .modelfile import MODELS_DIR, LoadedModel, card_scenario, load_model, model_scenario
 
 #: The paper's validation losses (Table 2, ×1e-3 there).
 PAPER_VAL = {"cikan": 1.2615e-3, "grbf": 1.1540e-3, "rswaf": 1.2610e-3, "relu": 1.6458e-3,
@@ -31,32 +31,42 @@ HOLD_S = 1e-4
 
 
 def shipped_models(root: Path = MODELS_DIR) -> list[LoadedModel | tuple[str, str]]:
-    """Every model directory under ``root`` (sorted), loaded and checked, or (name, error)."""
+    """Every model directory under ``root``, the scenarios' subdirectories included (sorted),
+    loaded and checked, or (name relative to ``root``, error)."""
     out: list[LoadedModel | tuple[str, str]] = []
-    for d in sorted(p for p in root.iterdir() if (p / "card.json").exists()):
+    for d in sorted(p.parent for p in root.rglob("card.json")):
         try:
             out.append(load_model(d))
         except ModelFileError as exc:
-            out.append((d.name, str(exc)))
+            out.append((d.relative_to(root).as_posix(), str(exc)))
     return out
+
+
+def _name(path: Path) -> str:
+    """A model directory's name under ``models/`` (``cikan``, ``leo/cikan-ahead``)."""
+    try:
+        return Path(path).resolve().relative_to(MODELS_DIR.resolve()).as_posix()
+    except ValueError:
+        return Path(path).name
 
 
 def card_table(models: list[LoadedModel | tuple[str, str]]) -> str:
     """Markdown: one row per model directory, from its card."""
-    rows = ["| model | inputs | (n, l, G) | params | n²l(G+3) | θ_c | L_train | L_val | L_test "
+    rows = ["| model | scenario, side | inputs | (n, l, G) | params | n²l(G+3) | θ_c | L_train | L_val | L_test "
             "| L_val (θ_c=1) | L_val paper | RMSE τ test (s) | train labels | epochs | CPU wall (s) "
             "| TPE trials (complete/pruned) |",
-            "|" + "---|" * 16]
+            "|" + "---|" * 17]
     for m in models:
         if isinstance(m, tuple):
-            rows.append(f"| {m[0]} | unreadable: {m[1]} |" + " |" * 14)
+            rows.append(f"| {m[0]} | unreadable: {m[1]} |" + " |" * 15)
             continue
         a, c = m.arch, m.card
         L, tr, tun = c["losses"], c["training"], c.get("tuning", {})
         size = f"({a.width}, {a.layers}, {a.grid})" if a.is_kan else f"({a.width}, {a.layers}, -)"
         labels = c.get("dataset", {}).get("split_labels", {}).get("train", "-")
+        sc = model_scenario(c)
         rows.append(
-            f"| {m.path.name} | {a.features} | {size} | {a.n_params():,} | {a.complexity():,} "
+            f"| {_name(m.path)} | {sc['name']}, {sc['approach']} | {a.features} | {size} | {a.n_params():,} | {a.complexity():,} "
             f"| {L['theta_c']:.2f} | {L['train']['loss']:.3e} | {L['val']['loss']:.3e} "
             f"| {L['test']['loss']:.3e} | {L['val']['loss_theta1']:.3e} | {PAPER_VAL[a.family]:.3e} "
             f"| {L['test']['rmse_tau_s']:.3f} | {labels:,} | {tr['epochs_run']}/{tr['epochs']} "
@@ -74,19 +84,23 @@ def loss_breakdown(models: list[LoadedModel | tuple[str, str]], data_path: str |
     from .features import features
     from .loss import cinn_log_loss_np
 
-    df, _ = read_parquet(data_path)
+    df, meta = read_parquet(data_path)
     part = df[df["split"] == split]
     tau = part["tau_star_s"].to_numpy(dtype=float)
     prev = part["tau_prev_s"].to_numpy(dtype=float)
     y = np.log(np.abs(tau))
+    mag = np.abs(tau)
     groups: list[tuple[str, np.ndarray]] = [("all", np.ones(len(y), bool))]
-    groups += [(f"\\|τ*\\| in [{lo:g}, {hi:g}) s", (-tau >= lo) & (-tau < hi)) for lo, hi in BANDS]
-    hold = (tau - prev) <= HOLD_S
-    groups += [("hold (π* - τ_{k-1} <= 1e-4 s)", hold), ("move", ~hold)]
-    ok = [m for m in models if not isinstance(m, tuple)]
-    head = "| labels | share of split | " + " | ".join(m.path.name for m in ok) + " |"
-    lines = [f"Split `{split}` of `{Path(data_path).name}` ({len(y):,} labels); loss = the paper's "
-             "definition at θ_c = 1.", "", head, "|" + "---|" * (2 + len(ok))]
+    groups += [(f"\\|τ*\\| in [{lo:g}, {hi:g}) s", (mag >= lo) & (mag < hi)) for lo, hi in BANDS]
+    hold = np.abs(tau - prev) <= HOLD_S
+    groups += [("hold (\\|π* - τ_{k-1}\\| <= 1e-4 s)", hold), ("move", ~hold)]
+    # The models of the dataset's scenario and side only (the others learned other states).
+    ok = [m for m in models if not isinstance(m, tuple) and model_scenario(m.card) == card_scenario(meta)]
+    head = "| labels | share of split | " + " | ".join(_name(m.path) for m in ok) + " |"
+    sc = card_scenario(meta)
+    lines = [f"Split `{split}` of `{Path(data_path).name}` (scenario {sc['name']}, approach "
+             f"{sc['approach']}; {len(y):,} labels); loss = the paper's definition at θ_c = 1.", "",
+             head, "|" + "---|" * (2 + len(ok))]
     preds = {}
     x_d = part[list(XD_COLS)].to_numpy()
     x_c = part[list(XC_COLS)].to_numpy()
@@ -100,15 +114,19 @@ def loss_breakdown(models: list[LoadedModel | tuple[str, str]], data_path: str |
     return "\n".join(lines) + "\n"
 
 
-def models_page(intro: str, data_path: str | Path | None, split: str = "val",
+def models_page(intro: str, data_path: str | Path | list[str | Path] | None, split: str = "val",
                 root: Path = MODELS_DIR, out: str | Path | None = "models/README.md"
                 ) -> tuple[str, dict[str, Any]]:
-    """The whole ``models/README.md``: a fixed introduction, then the generated tables; the
-    footer names the command that wrote it (``out``: its --out, None for standard output)."""
+    """The whole ``models/README.md``: a fixed introduction, then the generated tables (a loss
+    breakdown per dataset, for the models of its scenario and side); the footer names the
+    command that wrote it (``out``: its --out, None for standard output)."""
     models = shipped_models(root)
     parts = [intro.rstrip() + "\n", "## Models (from the cards)\n", card_table(models)]
-    if data_path is not None:
-        parts += ["\n## Loss by |τ*| band and by hold/move update\n", loss_breakdown(models, data_path, split)]
-    parts.append("\n*Generated by `cikan models" + (f" --data {data_path}" if data_path else "")
+    paths = [] if data_path is None else [data_path] if isinstance(data_path, (str, Path)) else list(data_path)
+    if paths:
+        parts.append("\n## Loss by |τ*| band and by hold/move update\n")
+    for p in paths:
+        parts += [loss_breakdown(models, p, split)]
+    parts.append("\n*Generated by `cikan models" + (f" --data {' '.join(map(str, paths))}" if paths else "")
                  + (f" --out {out}" if out else "") + "`; do not edit the tables by hand.*\n")
     return "\n".join(parts), {"models": len(models)}
