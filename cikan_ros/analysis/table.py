@@ -263,3 +263,45 @@ def to_csv(rows: list[dict[str, Any]]) -> str:
     for r in rows:
         w.writerow({c: r[c] for c in COLUMNS})
     return buf.getvalue()
+
+
+def per_start_worst(mc_dir: str | Path, governor: str) -> tuple[float, float]:
+    """(worst ΔV ratio, worst time-to-τ=0 ratio) of ``governor`` against the conventional TSG
+    over the starts both flew in a campaign (NaN without a conventional run)."""
+    def load(g: str) -> dict[int, dict[str, Any]]:
+        return {int(m["seed"]): m for m, _, _ in _runs(Path(mc_dir) / g)}
+    conv, gov = load("conventional"), load(governor)
+    seeds = [s for s in gov if s in conv]
+    if not seeds:
+        return math.nan, math.nan
+    dv = max(gov[s]["delta_v_kmps"] / conv[s]["delta_v_kmps"] for s in seeds)
+    tt = [gov[s]["t_tau_zero_s"] / conv[s]["t_tau_zero_s"] for s in seeds
+          if gov[s].get("t_tau_zero_s") and conv[s].get("t_tau_zero_s")]
+    return dv, max(tt) if tt else math.nan
+
+
+def scenarios_index(root: str | Path) -> str:
+    """Markdown: one block of rows per campaign directory under ``root`` (``make
+    scenario-results``: runs/scenario-results/<scenario>-<side>), each governor's docking,
+    violations, ΔV and time to τ = 0 against the conventional TSG of the same campaign (mean
+    ratio, and the worst start), and its active-update speed-up (CPU time, as flown)."""
+    lines = ["| scenario | side | governor | runs | docked | violations | ΔV mean (km/s) | ΔV vs conv. "
+             "(worst start) | t(τ=0) vs conv. (worst start) | active speed-up mean / worst | NN accept |",
+             "|" + "---|" * 11]
+    for d in sorted(p for p in Path(root).iterdir() if p.is_dir()):
+        scenario, approach = campaign_scenario(d)
+        for r in build_table(d, with_rmse=False):
+            g = r["model"]
+            if g == "conventional":
+                vs = "-"
+                tvs = "-"
+            else:
+                wdv, wt = per_start_worst(d, g)
+                vs = f"{r['delta_v_vs_conventional']:+.1%} ({wdv - 1:+.0%})"
+                tvs = f"{r['t_tau_zero_vs_conventional']:+.1%} ({wt - 1:+.0%})"
+            lines.append(
+                f"| {scenario} | {approach} | {g} | {r['runs']} | {r['successes']} | {r['violations']} "
+                f"| {_fmt(r['delta_v_kmps_mean'], '.4f')} | {vs} | {tvs} "
+                f"| {_fmt(r['active_speedup_mean'], '.2f')} / {_fmt(r['active_speedup_worst'], '.2f')} "
+                f"| {_fmt(r['nn_accept_rate'], '.3f')} |")
+    return "\n".join(lines) + "\n"

@@ -250,6 +250,9 @@ class LearnedGovernor:
                     miss = False
         if miss is not None:  # one judgement per update
             trust.judge(miss)
+            if trust.searching:  # trust lost: this update already answers π*, not the audit's step
+                tau, c = pred.optimal_shift(x_d, t, tau_prev)
+                return tau, PATH_SEARCH, calls + c, None
         return tau, path, calls, cache
 
     def would_pay(self, tau_c: float, tau_prev: float, tau_star: float) -> bool | None:
