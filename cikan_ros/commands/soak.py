@@ -38,56 +38,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def expected_stamps(n_steps: int) -> dict[str, int]:
-    """Topic -> number of steps it carries a message for: the states of t_0..t_K, one shift and
-    one command for each of t_0..t_{K-1}."""
-    from ..ros.graph import (ACCEL_CMD, CHIEF_ODOM, CLOCK, DEPUTY_ODOM, TIME_SHIFT, TRUTH_ACCEL,
-                             TRUTH_CHIEF, TRUTH_DEPUTY)
-
-    states = {t: n_steps + 1 for t in (CLOCK, CHIEF_ODOM, DEPUTY_ODOM, TRUTH_CHIEF, TRUTH_DEPUTY)}
-    return {**states, TIME_SHIFT: n_steps, ACCEL_CMD: n_steps, TRUTH_ACCEL: n_steps}
-
-
-def check_bag(bag: Path, cfg: Any) -> dict[str, int]:
+def check_bag(bag: Path, cfg: Any) -> dict[str, Any]:
     """Lost, duplicated and off-grid messages of a recorded mission, per the mission's K steps
-    (``mission.duration_s`` / ``control.period_s``); the simulator's per-step records too."""
-    from ..ros.convert import MessageError, Timeline, diagnostic_values, time_to_ns
-    from ..ros.graph import DIAGNOSTICS
-    from ..ros.record import read_bag
+    (``mission.duration_s`` / ``control.period_s``): :func:`cikan_ros.ros.record.check_messages`."""
+    from ..ros.record import check_messages, read_bag
 
-    n_steps = round(cfg.mission.duration_s / cfg.control.period_s)
-    tl = Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
-    msgs = read_bag(bag)
-    lost = dup = off = total = 0
-    where: dict[str, int] = {}
-    for topic, n in expected_stamps(n_steps).items():
-        ks = []
-        for log_time, m in msgs.get(topic, []):
-            stamp = time_to_ns(m.clock if topic == "/clock" else m.header.stamp)
-            try:
-                k = tl.step(stamp)
-            except MessageError:
-                off += 1
-                continue
-            off += log_time != stamp   # the recorder logs every message at its own stamp
-            ks.append(k)
-        total += len(ks)
-        missing = len(set(range(n)) - set(ks))
-        lost += missing
-        if missing:
-            where[topic] = missing
-        dup += len(ks) - len(set(ks))
-        off += sum(1 for k in ks if not 0 <= k < n)
-    steps = [int(diagnostic_values(s)["k"]) for _, arr in msgs.get(DIAGNOSTICS, []) for s in arr.status
-             if s.name == "sim_node" and diagnostic_values(s).get("event") == "step"]
-    missing = len(set(range(n_steps)) - set(steps))
-    lost += missing
-    if missing:
-        where["/diagnostics (sim steps)"] = missing
-    dup += len(steps) - len(set(steps))
-    total += sum(len(v) for t, v in msgs.items() if t not in expected_stamps(n_steps))
-    return {"steps": n_steps, "messages": total, "lost": lost, "duplicated": dup, "off_grid": off,
-            "lost_on": ", ".join(f"{t} {n}" for t, n in where.items())}
+    return check_messages(read_bag(bag), cfg, round(cfg.mission.duration_s / cfg.control.period_s))
 
 
 def run(args: argparse.Namespace) -> int:

@@ -33,8 +33,8 @@ from typing import Any, Callable, Iterable
 import yaml
 
 from ..config import Config
-from ..errors import CikanError
-from .graph import cached_predictor
+from ..errors import CikanError, MissionError
+from .graph import EXIT_BAD_INPUT, cached_predictor
 
 #: Module run for each node (``python -m``), in start order: the recorder first, the sim last.
 NODE_MODULES = {
@@ -218,7 +218,8 @@ def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | Non
     CikanError line naming the node, its exit code, its last error line and where the logs are;
     a bag without a message is removed then, a bag with messages is kept (closed, readable).
     """
-    from .record import recorded_metrics
+    from .graph import ACCEL_CMD, TIME_SHIFT
+    from .record import check_messages, read_bag, recorded_metrics
 
     commands = {"governor": exec_command(governor_exec)} if governor_exec is not None else {}
     if governor_exec is not None:
@@ -234,12 +235,15 @@ def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | Non
     graph = Graph(workdir, ros_environment(pick_domain_id(), workdir / "ros_log"),
                   write_params(workdir / "params.yaml", cfg, params), commands=commands)
     failure: str | None = None
+    bad_input = False   # a node refused its input (exit code 2): cikan's bad input, not a failed mission
     wall0 = time.perf_counter()
 
     def terminate(_signum: int, _frame: Any) -> None:
         raise KeyboardInterrupt
 
     def exited(name: str, rc: int) -> str:
+        nonlocal bad_input
+        bad_input = rc == EXIT_BAD_INPUT
         who = f"governor ({governor})" if name in commands else f"{name}_node"
         return f"{who} exited with code {rc}: {graph.reason(name)}"
 
@@ -272,17 +276,49 @@ def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | Non
             shutil.rmtree(workdir, ignore_errors=True)
     if failure is not None:
         kept = "removed the empty bag" if discard_empty_bag(bag_path) else f"bag kept in {bag_path}"
-        raise CikanError(f"{failure} ({kept}; node logs in {workdir})")
+        raise (CikanError if bad_input else MissionError)(f"{failure} ({kept}; node logs in {workdir})")
     wall = time.perf_counter() - wall0
     rc = graph.procs["recorder"].returncode
     if rc != 0:
-        raise CikanError(f"recorder_node ended abnormally (exit code {rc}): the bag {bag_path} holds "
+        raise MissionError(f"recorder_node ended abnormally (exit code {rc}): the bag {bag_path} holds "
                          "the messages up to its last flushed chunk; no metrics computed")
-    _, metrics = recorded_metrics(bag_path, cfg, governor)
+    msgs = read_bag(bag_path)
+    steps = recorded_steps(bag_path, msgs, cfg)
+    _, metrics = recorded_metrics(bag_path, cfg, governor, msgs)
     metrics["bag"] = str(bag_path)
     metrics["ros"] = {"launch_wall_s": wall, **metrics.get("ros", {}),
                       "exit_codes": {n: p.returncode for n, p in graph.procs.items()}}
-    return lockstep_verdict(metrics)
+    metrics = lockstep_verdict(metrics)
+    if not metrics["lockstep_deadlines"]:
+        # Every step was answered in the lockstep: the controller had each shift, the simulator
+        # each command, so the bag must hold them too.
+        lost = check_messages(msgs, cfg, steps, (TIME_SHIFT, ACCEL_CMD))["lost_on"]
+        if lost:
+            raise MissionError(f"the bag {bag_path} lacks messages the lockstep delivered ({lost} of "
+                               f"{steps} steps): the recorder lost them; no metrics reported")
+    return metrics
+
+
+def recorded_steps(bag: Path, msgs: dict[str, list[tuple[int, Any]]], cfg: Config) -> int:
+    """K, the steps the simulator flew, from its mission-complete record in the bag; MissionError
+    (one line) if the bag lacks that record or any message of the simulator's topics at any of
+    the K steps, or holds one twice or off the grid: a bag cut short or with holes is a failed
+    mission, never a shorter one."""
+    from .record import SIM_TOPICS, check_messages, sim_summary
+
+    summary = sim_summary(msgs)
+    if summary is None:
+        raise MissionError(f"the bag {bag} lacks the simulator's mission-complete record: the recorder "
+                           "stopped before the mission's end (bag kept; no metrics reported)")
+    steps = int(summary["steps"])
+    check = check_messages(msgs, cfg, steps, SIM_TOPICS)
+    if check["lost"] or check["duplicated"] or check["off_grid"]:
+        what = ", ".join(f"{n} {w}" for n, w in ((check["lost"], "lost"), (check["duplicated"], "duplicated"),
+                                                 (check["off_grid"], "off the grid")) if n)
+        raise MissionError(f"the bag {bag} does not hold the mission's {steps} steps: {what}"
+                           + (f" ({check['lost_on']})" if check["lost_on"] else "")
+                           + " (bag kept; no metrics reported)")
+    return steps
 
 
 def lockstep_verdict(metrics: dict[str, Any]) -> dict[str, Any]:
