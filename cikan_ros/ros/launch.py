@@ -173,7 +173,9 @@ class Graph:
     def stop_all(self) -> None:
         """Producers first, the recorder last so the bag gets everything and closes."""
         self.stop(["sim", "governor", "controller"])
-        self.stop(["recorder"], timeout_s=20.0)
+        from .recorder import MAX_DRAIN_S
+
+        self.stop(["recorder"], timeout_s=MAX_DRAIN_S + 30.0)   # it drains all it holds, then closes
 
 
 def default_bag_path(governor: str) -> Path:
