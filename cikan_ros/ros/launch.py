@@ -1,7 +1,8 @@
 """The graph launcher behind ``cikan mission`` (ROS mode) and the ROS benchmark.
 
 Starts recorder_node, governor_node, controller_node and sim_node as separate processes (fresh
-interpreters, own process groups) on an isolated domain: a ROS_DOMAIN_ID of its own,
+interpreters, own process groups) on an isolated domain: a ROS_DOMAIN_ID that no other live graph
+of the machine uses (leased for the graph's lifetime, :mod:`cikan_ros.ros.domain`),
 ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and a private ROS_LOG_DIR. Every node gets the same
 params file (the mission's configuration plus node parameters); ``governor_exec`` runs any
 executable in place of governor_node with the same arguments (the README's governor contract).
@@ -16,7 +17,6 @@ from __future__ import annotations
 
 import os
 import ctypes
-import random
 import shlex
 import shutil
 import signal
@@ -34,6 +34,7 @@ import yaml
 
 from ..config import Config
 from ..errors import CikanError, MissionError
+from .domain import lease_domain
 from .graph import EXIT_BAD_INPUT, cached_predictor
 
 #: Module run for each node (``python -m``), in start order: the recorder first, the sim last.
@@ -66,17 +67,6 @@ def ros_environment(domain_id: int, log_dir: Path) -> dict[str, str]:
     env.update(ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
                ROS_LOG_DIR=str(log_dir), PYTHONUNBUFFERED="1", RCUTILS_COLORIZED_OUTPUT="0")
     return env
-
-
-def pick_domain_id() -> int:
-    """$CIKAN_ROS_DOMAIN_ID, or a random domain in 1..101 (Fast DDS kills IDs >= 233)."""
-    env = os.environ.get("CIKAN_ROS_DOMAIN_ID")
-    if env:
-        value = int(env)
-        if not 0 <= value <= 101:
-            raise CikanError(f"CIKAN_ROS_DOMAIN_ID must lie in 0..101, got {value}")
-        return value
-    return random.SystemRandom().randint(1, 101)
 
 
 #: prctl(2) option: the signal a child gets when the thread that started it dies.
@@ -127,6 +117,8 @@ class Graph:
     logs: dict[str, Path] = field(default_factory=dict)
     #: argv (before ``--ros-args``) of a node run by another executable, e.g. ``{"governor": [...]}``.
     commands: dict[str, list[str]] = field(default_factory=dict)
+    #: Descriptors every node inherits: the domain lease's, so the lease lasts while any node runs.
+    pass_fds: tuple[int, ...] = ()
 
     def argv(self, name: str) -> list[str]:
         """Command line of a node: its module (or its replacement) + ``--ros-args --params-file``."""
@@ -141,7 +133,8 @@ class Graph:
             with open(log, "wb") as out:
                 self.procs[name] = subprocess.Popen(
                     self.argv(name), env=env, stdout=out, stderr=subprocess.STDOUT,
-                    stdin=subprocess.DEVNULL, start_new_session=True, preexec_fn=die_with_parent())
+                    stdin=subprocess.DEVNULL, start_new_session=True, preexec_fn=die_with_parent(),
+                    pass_fds=self.pass_fds)
 
     def tail(self, name: str, lines: int = 15) -> str:
         try:
@@ -234,8 +227,10 @@ def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | Non
     params = {"governor.name": governor, "sim.seed": -1 if seed is None else int(seed),
               "sim.stop_on_dock": bool(stop_on_dock), "recorder.bag": str(bag_path.resolve()),
               "graph.peers": ["sim", "governor", "controller", "recorder"], **(node_params or {})}
-    graph = Graph(workdir, ros_environment(pick_domain_id(), workdir / "ros_log"),
-                  write_params(workdir / "params.yaml", cfg, params), commands=commands)
+    lease = lease_domain()   # held until every node has ended: no other graph flies on it
+    graph = Graph(workdir, ros_environment(lease.domain, workdir / "ros_log"),
+                  write_params(workdir / "params.yaml", cfg, params), commands=commands,
+                  pass_fds=lease.fds())
     failure: str | None = None
     bad_input = False   # a node refused its input (exit code 2): cikan's bad input, not a failed mission
     wall0 = time.perf_counter()
@@ -270,6 +265,7 @@ def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | Non
             failure = exited("sim", sim.returncode)
     finally:
         graph.stop_all()
+        lease.release()
         if main_thread:
             signal.signal(signal.SIGTERM, previous)
         if failure is None and keep_logs:
@@ -288,7 +284,7 @@ def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | Non
     steps = recorded_steps(bag_path, msgs, cfg)
     _, metrics = recorded_metrics(bag_path, cfg, governor, msgs)
     metrics["bag"] = str(bag_path)
-    metrics["ros"] = {"launch_wall_s": wall, **metrics.get("ros", {}),
+    metrics["ros"] = {"launch_wall_s": wall, **metrics.get("ros", {}), "domain_id": lease.domain,
                       "exit_codes": {n: p.returncode for n, p in graph.procs.items()}}
     metrics = lockstep_verdict(metrics)
     if not metrics["lockstep_deadlines"]:
