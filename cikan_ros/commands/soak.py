@@ -72,6 +72,11 @@ def run(args: argparse.Namespace) -> int:
                 row["error"] = ""
             except CikanError as exc:
                 row.update(ok=False, error=str(exc))
+                if (bag / "metadata.yaml").exists():   # a failed mission's bag: what it lacks, counted
+                    try:
+                        row.update(check_bag(bag, cfg))
+                    except Exception:   # an unreadable bag: the error above says enough
+                        pass
             row["wall_s"] = time.perf_counter() - t0
             rows.append(row)
             if not args.json:
@@ -98,11 +103,12 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _line(row: dict[str, Any]) -> str:
+    counts = (f"{row['messages']} messages, lost {row['lost']}, duplicated {row['duplicated']}, off grid "
+              f"{row['off_grid']}" + (f" (lost on {row['lost_on']})" if row["lost_on"] else "")) \
+        if "messages" in row else ""
     if row.get("error"):
-        return f"run {row['run']}: FAILED: {row['error']}"
-    return (f"run {row['run']}: {row['messages']} messages, lost {row['lost']}, duplicated "
-            f"{row['duplicated']}, off grid {row['off_grid']}, deadlines {row['deadlines']}, "
-            f"{row['wall_s']:.1f} s wall" + (f" (lost on {row['lost_on']})" if row["lost_on"] else ""))
+        return f"run {row['run']}: FAILED: {row['error']}" + (f"; bag: {counts}" if counts else "")
+    return f"run {row['run']}: {counts}, deadlines {row['deadlines']}, {row['wall_s']:.1f} s wall"
 
 
 def table(rows: list[dict[str, Any]], summary: dict[str, Any]) -> str:
@@ -110,14 +116,14 @@ def table(rows: list[dict[str, Any]], summary: dict[str, Any]) -> str:
     head = "| run | steps | messages | lost | duplicated | off grid | deadlines fired | violations | rtf | wall s | result |"
     lines = [head, "|" + "---|" * 11]
     for r in rows:
-        if r.get("error"):
-            lines.append(f"| {r['run']} | | | | | | | | | {r['wall_s']:.1f} | FAILED: {r['error'][:120]} |")
-            continue
-        rtf = "-" if r.get("rtf") is None else f"{r['rtf']:.0f}"
-        lines.append(f"| {r['run']} | {r['steps']} | {r['messages']} | {r['lost']} | {r['duplicated']} | "
-                     f"{r['off_grid']} | {r['deadlines']} | {r['violations']} | {rtf} | {r['wall_s']:.1f} | "
-                     f"{'ok' if r['ok'] else 'FAILED'}" + (f" (lost on {r['lost_on']})" if r["lost_on"] else "")
-                     + " |")
+        def cell(key: str, fmt: str = "{}") -> str:
+            return "" if r.get(key) is None else fmt.format(r[key])
+        result = f"FAILED: {r['error'][:120]}" if r.get("error") else "ok" if r["ok"] else "FAILED"
+        if r.get("lost_on"):
+            result += f" (lost on {r['lost_on']})"
+        lines.append(f"| {r['run']} | {cell('steps')} | {cell('messages')} | {cell('lost')} | {cell('duplicated')} | "
+                     f"{cell('off_grid')} | {cell('deadlines')} | {cell('violations')} | {cell('rtf', '{:.0f}')} | "
+                     f"{r['wall_s']:.1f} | {result} |")
     lines.append(f"\n{summary['runs']} runs ({summary['governor']}, load {'on' if summary['load'] else 'off'}): "
                  f"{summary['failed']} failed, {summary['lost']} messages lost, {summary['duplicated']} "
                  f"duplicated, {summary['deadlines']} deadlines fired")
