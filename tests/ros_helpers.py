@@ -27,13 +27,15 @@ def isolated_ros(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[in
     graphs the test launches fly on it): env for this process and launched graphs, a private log
     dir, and removal of the Fast DDS shared-memory files left behind (e.g. by SIGKILL)."""
     from cikan_ros.ros.domain import lease_domain
+    from cikan_ros.ros.launch import dds_environment
 
     monkeypatch.delenv("CIKAN_ROS_DOMAIN_ID", raising=False)
     lease = lease_domain()
     domain = lease.domain
     monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
     monkeypatch.setenv("CIKAN_ROS_DOMAIN_ID", str(domain))
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    for name, value in dds_environment().items():   # as the launcher's graphs: loopback UDP only
+        monkeypatch.setenv(name, value)
     monkeypatch.setenv("ROS_LOG_DIR", str(tmp_path / "ros_log"))
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))   # launcher work dirs (kept on failure)
     before = _shm_files()

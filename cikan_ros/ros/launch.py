@@ -2,8 +2,8 @@
 
 Starts recorder_node, governor_node, controller_node and sim_node as separate processes (fresh
 interpreters, own process groups) on an isolated domain: a ROS_DOMAIN_ID that no other live graph
-of the machine uses (leased for the graph's lifetime, :mod:`cikan_ros.ros.domain`),
-ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and a private ROS_LOG_DIR. Every node gets the same
+of the machine uses (leased for the graph's lifetime, :mod:`cikan_ros.ros.domain`), DDS over
+UDP on the loopback interface only (:func:`dds_environment`) and a private ROS_LOG_DIR. Every node gets the same
 params file (the mission's configuration plus node parameters); ``governor_exec`` runs any
 executable in place of governor_node with the same arguments (the README's governor contract).
 The simulator ends the lockstep; the launcher then stops the governor and the controller, then
@@ -34,6 +34,7 @@ import yaml
 
 from ..config import Config
 from ..errors import CikanError, MissionError
+from ..paths import shipped
 from .domain import lease_domain
 from .graph import EXIT_BAD_INPUT, cached_predictor
 
@@ -61,11 +62,24 @@ def write_params(path: Path, cfg: Config, node_params: dict[str, Any]) -> Path:
     return path
 
 
+#: Fast DDS profile of every process of a graph: UDPv4 on the loopback interface, no shared memory
+#: (the file says why).
+FASTDDS_PROFILE = shipped("config/fastdds_udp_localhost.xml")
+
+
+def dds_environment() -> dict[str, str]:
+    """How every process of a graph talks: :data:`FASTDDS_PROFILE`, which rmw_fastrtps applies
+    as it is only with ``ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT`` (``LOCALHOST`` would add
+    the shared-memory transport)."""
+    return {"ROS_AUTOMATIC_DISCOVERY_RANGE": "SYSTEM_DEFAULT", "FASTRTPS_DEFAULT_PROFILES_FILE": str(FASTDDS_PROFILE)}
+
+
 def ros_environment(domain_id: int, log_dir: Path) -> dict[str, str]:
-    """Environment of the children: isolated domain, localhost discovery, private log directory."""
+    """Environment of the children: isolated domain, loopback-only transport
+    (:func:`dds_environment`), private log directory."""
     env = dict(os.environ)
-    env.update(ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-               ROS_LOG_DIR=str(log_dir), PYTHONUNBUFFERED="1", RCUTILS_COLORIZED_OUTPUT="0")
+    env.update(ROS_DOMAIN_ID=str(domain_id), ROS_LOG_DIR=str(log_dir), PYTHONUNBUFFERED="1",
+               RCUTILS_COLORIZED_OUTPUT="0", **dds_environment())
     return env
 
 
