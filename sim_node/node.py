@@ -93,7 +93,7 @@ class SimNode(Node):
                  ((self.pub_deputy, DEPUTY_ODOM), (self.pub_chief, CHIEF_ODOM), (self.pub_clock, CLOCK),
                   (self.pub_diag, DIAGNOSTICS), (self.pub_truth_chief, TRUTH_CHIEF),
                   (self.pub_truth_deputy, TRUTH_DEPUTY), (self.pub_truth_accel, TRUTH_ACCEL))]
-        self.peers = PeerWatch(self, peers, self.readiness.poke)
+        self.peers = PeerWatch(self.readiness, peers)
         self.readiness.start(waits, [(self.sub_accel, required_publishers(ACCEL_CMD, peers))], timeout,
                              self.start, self.peers.missing)
 
