@@ -54,7 +54,8 @@ def share_files() -> list[tuple[str, list[str]]]:
     share = f"share/{PACKAGE}"
     out = [("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
            (share, ["package.xml"]),
-           (f"{share}/config", sorted(str(p.relative_to(HERE)) for p in (HERE / "config").glob("*.yaml"))),
+           (f"{share}/config", sorted(str(p.relative_to(HERE)) for p in (HERE / "config").glob("*.*")
+                                      if p.suffix in (".yaml", ".xml"))),
            (f"{share}/config/truth", sorted(str(p.relative_to(HERE))
                                             for p in (HERE / "config" / "truth").glob("*.yaml"))),
            (f"{share}/config/scenarios", sorted(str(p.relative_to(HERE))

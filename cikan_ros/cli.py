@@ -2,7 +2,8 @@
 ``register(subparsers)``; heavy imports happen inside the command, so ``cikan --help`` is fast.
 
 Errors the project raises on purpose (:class:`CikanError`) are printed as one line naming the
-problem, with exit code 2; no traceback.
+problem, with exit code 2 (bad input), or 1 for a mission that ran and failed
+(:class:`~cikan_ros.errors.MissionError`); no traceback.
 """
 
 from __future__ import annotations
@@ -56,7 +57,7 @@ def main(argv: list[str] | None = None) -> int:
         return int(args.func(args) or 0)
     except CikanError as exc:
         print(f"cikan {args.command}: error: {exc}", file=sys.stderr)
-        return 2
+        return exc.exit_code
     except KeyboardInterrupt:
         print(f"cikan {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -2,7 +2,16 @@
 
 
 class CikanError(Exception):
-    """Base class of every error the project raises on purpose."""
+    """Base class of every error the project raises on purpose (``cikan``: exit code 2, bad input)."""
+
+    #: Exit code of ``cikan`` when this error ends a command.
+    exit_code = 2
+
+
+class MissionError(CikanError):
+    """A mission that ran and failed: a node ended abnormally, the bag lost messages (exit code 1)."""
+
+    exit_code = 1
 
 
 class ConfigError(CikanError, ValueError):

@@ -38,6 +38,10 @@ from cikan_ros.truth import Truth
 from cikan_ros.ros.params import NodeSpec, declare_parameters
 
 NAME = "sim_node"
+#: How long (wall) the simulator, at the end, waits for every reader (the recorder) to acknowledge
+#: its messages: reliable samples a reader has not acknowledged die with their writer. A reader's
+#: middleware threads acknowledge on reception, however far behind its executor is.
+ACK_BUDGET_S = 30.0
 #: Parameters: the groups sim and graph of config/nodes.yaml, and the mission configuration.
 SPEC = NodeSpec(NAME, __doc__, ("sim", "graph"))
 
@@ -89,7 +93,7 @@ class SimNode(Node):
                  ((self.pub_deputy, DEPUTY_ODOM), (self.pub_chief, CHIEF_ODOM), (self.pub_clock, CLOCK),
                   (self.pub_diag, DIAGNOSTICS), (self.pub_truth_chief, TRUTH_CHIEF),
                   (self.pub_truth_deputy, TRUTH_DEPUTY), (self.pub_truth_accel, TRUTH_ACCEL))]
-        self.peers = PeerWatch(self, peers, self.readiness.poke)
+        self.peers = PeerWatch(self.readiness, peers)
         self.readiness.start(waits, [(self.sub_accel, required_publishers(ACCEL_CMD, peers))], timeout,
                              self.start, self.peers.missing)
 
@@ -209,10 +213,13 @@ class SimNode(Node):
         """Let every reliable reader acknowledge the last messages before the process ends."""
         if not self.done.done():
             return
+        end = time.monotonic() + ACK_BUDGET_S
         for pub in (self.pub_clock, self.pub_chief, self.pub_deputy, self.pub_diag,
                     self.pub_truth_chief, self.pub_truth_deputy, self.pub_truth_accel):
             try:
-                pub.wait_for_all_acked(Duration(seconds=2))
+                if not pub.wait_for_all_acked(Duration(seconds=max(0.0, end - time.monotonic()))):
+                    self.get_logger().warning(f"{pub.topic_name}: not every reader acknowledged the last "
+                                              f"messages within {ACK_BUDGET_S:g} s")
             except Exception:  # the context may already be shut down by a signal
                 return
 

@@ -4,7 +4,6 @@ thread, and bag reading with the independent readers (rosbags, mcap)."""
 from __future__ import annotations
 
 import contextlib
-import itertools
 import os
 import tempfile
 import threading
@@ -15,8 +14,6 @@ from typing import Any, Iterator
 import numpy as np
 import pytest
 
-_domains = itertools.count()
-
 
 def _shm_files() -> set[Path]:
     shm = Path("/dev/shm")
@@ -25,21 +22,32 @@ def _shm_files() -> set[Path]:
 
 @contextlib.contextmanager
 def isolated_ros(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[int]:
-    """An isolated ROS domain (id returned): env for this process and launched graphs, a private
-    log dir, and removal of the Fast DDS shared-memory files left behind (e.g. by SIGKILL)."""
-    domain = 1 + (os.getpid() * 13 + next(_domains)) % 101
+    """An isolated ROS domain (id returned), leased for the test as the launcher leases one
+    (:mod:`cikan_ros.ros.domain`: no other test session or graph of the machine is on it; the
+    graphs the test launches fly on it): env for this process and launched graphs, a private log
+    dir, and removal of the Fast DDS shared-memory files left behind (e.g. by SIGKILL)."""
+    from cikan_ros.ros.domain import lease_domain
+    from cikan_ros.ros.launch import dds_environment
+
+    monkeypatch.delenv("CIKAN_ROS_DOMAIN_ID", raising=False)
+    lease = lease_domain()
+    domain = lease.domain
     monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
     monkeypatch.setenv("CIKAN_ROS_DOMAIN_ID", str(domain))
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    for name, value in dds_environment().items():   # as the launcher's graphs: loopback UDP only
+        monkeypatch.setenv(name, value)
     monkeypatch.setenv("ROS_LOG_DIR", str(tmp_path / "ros_log"))
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))   # launcher work dirs (kept on failure)
     before = _shm_files()
-    yield domain
-    for f in _shm_files() - before:
-        try:
-            f.unlink()
-        except OSError:
-            pass
+    try:
+        yield domain
+    finally:
+        lease.release()
+        for f in _shm_files() - before:
+            try:
+                f.unlink()
+            except OSError:
+                pass
 
 
 @pytest.fixture

@@ -51,7 +51,12 @@ def test_readme_recipe_flies_and_names_the_governor(ros_env: int, tmp_path: Path
     # A directory that looks like the repository to the recipe: the venv and the shipped config.
     (tmp_path / ".venv").symlink_to(Path(sys.prefix))
     (tmp_path / "config").symlink_to(ROOT / "config")
-    env = {k: v for k, v in os.environ.items() if k not in ("ROS_DOMAIN_ID", "CIKAN_ROS_DOMAIN_ID")}
+    # The recipe's domain, 42, becomes the test's leased one: no concurrent graph shares it.
+    assert "export ROS_DOMAIN_ID=42 " in prelude
+    env_names = ("ROS_DOMAIN_ID", "CIKAN_ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE",
+                 "FASTRTPS_DEFAULT_PROFILES_FILE")   # the recipe sets them itself
+    prelude = prelude.replace("export ROS_DOMAIN_ID=42 ", f"export ROS_DOMAIN_ID={ros_env} ")
+    env = {k: v for k, v in os.environ.items() if k not in env_names}
     procs: dict[str, subprocess.Popen] = {}
     logs: dict[str, Path] = {}
     try:

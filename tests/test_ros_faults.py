@@ -20,7 +20,7 @@ import pytest
 import yaml
 
 from cikan_ros.config import load_config
-from cikan_ros.errors import CikanError
+from cikan_ros.errors import CikanError, MissionError
 from cikan_ros.ros.graph import QOS_STREAM
 from cikan_ros.ros.launch import Graph, ros_environment, run_ros_mission, write_params
 from ros_helpers import (TestNode, independent_check, mcap_counts, ros_env, rosbags_messages, shifts,
@@ -179,7 +179,7 @@ def test_recorder_sigkill_leaves_bag_readable_to_last_chunk(ros_env: int, tmp_pa
     bag = tmp_path / "bag"
     node = watcher(ros_env)
     try:
-        with pytest.raises(CikanError, match="recorder_node ended abnormally"):
+        with pytest.raises(MissionError, match="recorder_node ended abnormally"):
             run_ros_mission(cfg, bag=bag, on_started=kill_at_step(node, "recorder", 150),
                             node_params={"recorder.chunk_bytes": 8192, "sim.max_rtf": 400.0})
     finally:
@@ -408,7 +408,7 @@ def test_a_governor_failing_mid_mission_is_one_line_and_the_bag_stays_readable(r
                                          r".*bag kept in") as failure:
         run_ros_mission(load_config(**{"mission.duration_s": 1200.0}), bag=tmp_path / "bag",
                         governor_exec=f"{sys.executable} {script} 10")
-    assert "\n" not in str(failure.value)
+    assert "\n" not in str(failure.value) and failure.value.exit_code == 1   # a failed mission
     with open(next((tmp_path / "bag").glob("*.mcap")), "rb") as f:
         assert make_reader(f).get_summary() is not None         # closed by the recorder
     msgs = rosbags_messages(tmp_path / "bag")
@@ -420,6 +420,7 @@ def test_bad_model_at_launch_is_one_line_and_a_rerun_may_reuse_the_bag(ros_env: 
     with pytest.raises(CikanError, match="governor_node exited with code 2: .*nope") as failure:
         run_ros_mission(cfg, governor=str(tmp_path / "nope"), bag=tmp_path / "bag")
     assert "\n" not in str(failure.value) and "removed the empty bag" in str(failure.value)
+    assert failure.value.exit_code == 2                # the node refused its input: bad input
     assert not (tmp_path / "bag").exists()             # nothing was recorded: nothing left behind
     metrics = run_ros_mission(cfg, bag=tmp_path / "bag")   # the same --bag again
     assert metrics["ros"]["steps"] == 10 and len(rosbags_messages(tmp_path / "bag")["/deputy/odom"]) == 11

@@ -18,7 +18,9 @@ import numpy as np
 import pytest
 
 from cikan_ros.config import load_config
-from cikan_ros.ros.launch import lockstep_verdict, run_ros_mission
+from cikan_ros.errors import MissionError
+from cikan_ros.ros.launch import lockstep_verdict, recorded_steps, run_ros_mission
+from cikan_ros.ros.record import read_bag
 from ros_helpers import ros_env, rosbags_messages, shifts
 
 __all__ = ["ros_env"]
@@ -115,9 +117,30 @@ def test_a_deadline_that_fires_fails_the_run() -> None:
     assert metrics["lockstep_deadlines"] == 0 and metrics["success"] is True
 
 
-def test_soak_checks_every_bag(ros_env: int, tmp_path: Path) -> None:
+def copy_bag(src: Path, dst: Path, keep: Any) -> None:
+    """A copy of a recorded bag with only the messages ``keep(topic, log_time)`` accepts (raw
+    CDR, the same schemas and QoS): a recorder that stopped early or dropped a message."""
+    import yaml
+    from mcap.reader import make_reader
+
+    from cikan_ros.ros.bag import BagWriter
+
+    writer = BagWriter(dst)
+    with open(next(src.glob("*.mcap")), "rb") as f:
+        for schema, channel, message in make_reader(f).iter_messages(log_time_order=True):
+            if keep(channel.topic, message.log_time):
+                writer.add_topic(channel.topic, schema.name,
+                                 yaml.safe_load(channel.metadata["offered_qos_profiles"]) or [])
+                writer.write(channel.topic, message.data, message.log_time)
+    writer.close()
+
+
+def test_soak_and_mission_check_every_bag(ros_env: int, tmp_path: Path) -> None:
     """`cikan soak`: one short mission flown and its bag checked against the mission; a bag with a
-    step missing is found out."""
+    step missing is found out. `cikan mission` checks the bag against the steps the simulator
+    flew before reporting any metric: a recorder that stopped early (the last steps and the
+    mission-complete record missing) or lost one message fails the mission with one line (exit
+    code 1) naming what."""
     from cikan_ros.commands.soak import check_bag
 
     out = subprocess.run([str(Path(sys.executable).parent / "cikan"), "soak", "--runs", "1", "--json",
@@ -131,3 +154,19 @@ def test_soak_checks_every_bag(ros_env: int, tmp_path: Path) -> None:
     cfg = load_config(**{"mission.duration_s": 310.0})   # a mission one step longer than the bag
     # one per topic: the 5 state topics, the shift, the command, the applied thrust, the sim step record
     assert check_bag(tmp_path / "soak" / "run_000", cfg)["lost"] == 9
+    # What `cikan mission` does with the same bag: it flew K = 30 steps, all recorded.
+    bag = tmp_path / "soak" / "run_000"
+    msgs = read_bag(bag)
+    cfg = load_config(**{"mission.duration_s": 300.0})
+    assert recorded_steps(bag, msgs, cfg) == 30
+    last = max(t for t, _ in msgs["/clock"])
+    copy_bag(bag, tmp_path / "short", lambda topic, t: t < last - 5 * 10**10)   # the last 5 steps gone
+    with pytest.raises(MissionError, match=r"^the bag .*short lacks the simulator's mission-complete "
+                                           r"record: the recorder stopped before the mission's end") as e:
+        recorded_steps(tmp_path / "short", read_bag(tmp_path / "short"), cfg)
+    assert e.value.exit_code == 1
+    hole = last - 20 * 10**10
+    copy_bag(bag, tmp_path / "hole", lambda topic, t: not (topic == "/truth/deputy/odom" and t == hole))
+    with pytest.raises(MissionError, match=r"^the bag .*hole does not hold the mission's 30 steps: 1 lost "
+                                           r"\(/truth/deputy/odom 1\) \(bag kept; no metrics reported\)$"):
+        recorded_steps(tmp_path / "hole", read_bag(tmp_path / "hole"), cfg)

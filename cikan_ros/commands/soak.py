@@ -38,56 +38,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def expected_stamps(n_steps: int) -> dict[str, int]:
-    """Topic -> number of steps it carries a message for: the states of t_0..t_K, one shift and
-    one command for each of t_0..t_{K-1}."""
-    from ..ros.graph import (ACCEL_CMD, CHIEF_ODOM, CLOCK, DEPUTY_ODOM, TIME_SHIFT, TRUTH_ACCEL,
-                             TRUTH_CHIEF, TRUTH_DEPUTY)
-
-    states = {t: n_steps + 1 for t in (CLOCK, CHIEF_ODOM, DEPUTY_ODOM, TRUTH_CHIEF, TRUTH_DEPUTY)}
-    return {**states, TIME_SHIFT: n_steps, ACCEL_CMD: n_steps, TRUTH_ACCEL: n_steps}
-
-
-def check_bag(bag: Path, cfg: Any) -> dict[str, int]:
+def check_bag(bag: Path, cfg: Any) -> dict[str, Any]:
     """Lost, duplicated and off-grid messages of a recorded mission, per the mission's K steps
-    (``mission.duration_s`` / ``control.period_s``); the simulator's per-step records too."""
-    from ..ros.convert import MessageError, Timeline, diagnostic_values, time_to_ns
-    from ..ros.graph import DIAGNOSTICS
-    from ..ros.record import read_bag
+    (``mission.duration_s`` / ``control.period_s``): :func:`cikan_ros.ros.record.check_messages`."""
+    from ..ros.record import check_messages, read_bag
 
-    n_steps = round(cfg.mission.duration_s / cfg.control.period_s)
-    tl = Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
-    msgs = read_bag(bag)
-    lost = dup = off = total = 0
-    where: dict[str, int] = {}
-    for topic, n in expected_stamps(n_steps).items():
-        ks = []
-        for log_time, m in msgs.get(topic, []):
-            stamp = time_to_ns(m.clock if topic == "/clock" else m.header.stamp)
-            try:
-                k = tl.step(stamp)
-            except MessageError:
-                off += 1
-                continue
-            off += log_time != stamp   # the recorder logs every message at its own stamp
-            ks.append(k)
-        total += len(ks)
-        missing = len(set(range(n)) - set(ks))
-        lost += missing
-        if missing:
-            where[topic] = missing
-        dup += len(ks) - len(set(ks))
-        off += sum(1 for k in ks if not 0 <= k < n)
-    steps = [int(diagnostic_values(s)["k"]) for _, arr in msgs.get(DIAGNOSTICS, []) for s in arr.status
-             if s.name == "sim_node" and diagnostic_values(s).get("event") == "step"]
-    missing = len(set(range(n_steps)) - set(steps))
-    lost += missing
-    if missing:
-        where["/diagnostics (sim steps)"] = missing
-    dup += len(steps) - len(set(steps))
-    total += sum(len(v) for t, v in msgs.items() if t not in expected_stamps(n_steps))
-    return {"steps": n_steps, "messages": total, "lost": lost, "duplicated": dup, "off_grid": off,
-            "lost_on": ", ".join(f"{t} {n}" for t, n in where.items())}
+    return check_messages(read_bag(bag), cfg, round(cfg.mission.duration_s / cfg.control.period_s))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -116,6 +72,11 @@ def run(args: argparse.Namespace) -> int:
                 row["error"] = ""
             except CikanError as exc:
                 row.update(ok=False, error=str(exc))
+                if (bag / "metadata.yaml").exists():   # a failed mission's bag: what it lacks, counted
+                    try:
+                        row.update(check_bag(bag, cfg))
+                    except Exception:   # an unreadable bag: the error above says enough
+                        pass
             row["wall_s"] = time.perf_counter() - t0
             rows.append(row)
             if not args.json:
@@ -142,11 +103,12 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _line(row: dict[str, Any]) -> str:
+    counts = (f"{row['messages']} messages, lost {row['lost']}, duplicated {row['duplicated']}, off grid "
+              f"{row['off_grid']}" + (f" (lost on {row['lost_on']})" if row["lost_on"] else "")) \
+        if "messages" in row else ""
     if row.get("error"):
-        return f"run {row['run']}: FAILED: {row['error']}"
-    return (f"run {row['run']}: {row['messages']} messages, lost {row['lost']}, duplicated "
-            f"{row['duplicated']}, off grid {row['off_grid']}, deadlines {row['deadlines']}, "
-            f"{row['wall_s']:.1f} s wall" + (f" (lost on {row['lost_on']})" if row["lost_on"] else ""))
+        return f"run {row['run']}: FAILED: {row['error']}" + (f"; bag: {counts}" if counts else "")
+    return f"run {row['run']}: {counts}, deadlines {row['deadlines']}, {row['wall_s']:.1f} s wall"
 
 
 def table(rows: list[dict[str, Any]], summary: dict[str, Any]) -> str:
@@ -154,14 +116,14 @@ def table(rows: list[dict[str, Any]], summary: dict[str, Any]) -> str:
     head = "| run | steps | messages | lost | duplicated | off grid | deadlines fired | violations | rtf | wall s | result |"
     lines = [head, "|" + "---|" * 11]
     for r in rows:
-        if r.get("error"):
-            lines.append(f"| {r['run']} | | | | | | | | | {r['wall_s']:.1f} | FAILED: {r['error'][:120]} |")
-            continue
-        rtf = "-" if r.get("rtf") is None else f"{r['rtf']:.0f}"
-        lines.append(f"| {r['run']} | {r['steps']} | {r['messages']} | {r['lost']} | {r['duplicated']} | "
-                     f"{r['off_grid']} | {r['deadlines']} | {r['violations']} | {rtf} | {r['wall_s']:.1f} | "
-                     f"{'ok' if r['ok'] else 'FAILED'}" + (f" (lost on {r['lost_on']})" if r["lost_on"] else "")
-                     + " |")
+        def cell(key: str, fmt: str = "{}") -> str:
+            return "" if r.get(key) is None else fmt.format(r[key])
+        result = f"FAILED: {r['error'][:120]}" if r.get("error") else "ok" if r["ok"] else "FAILED"
+        if r.get("lost_on"):
+            result += f" (lost on {r['lost_on']})"
+        lines.append(f"| {r['run']} | {cell('steps')} | {cell('messages')} | {cell('lost')} | {cell('duplicated')} | "
+                     f"{cell('off_grid')} | {cell('deadlines')} | {cell('violations')} | {cell('rtf', '{:.0f}')} | "
+                     f"{r['wall_s']:.1f} | {result} |")
     lines.append(f"\n{summary['runs']} runs ({summary['governor']}, load {'on' if summary['load'] else 'off'}): "
                  f"{summary['failed']} failed, {summary['lost']} messages lost, {summary['duplicated']} "
                  f"duplicated, {summary['deadlines']} deadlines fired")

@@ -30,6 +30,7 @@ from __future__ import annotations
 import array
 import os
 import re
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterable
@@ -54,6 +55,11 @@ GOVERNOR_INFO = "/tsg/governor"
 TRUTH_CHIEF = "/truth/chief/odom"
 TRUTH_DEPUTY = "/truth/deputy/odom"
 TRUTH_ACCEL = "/truth/deputy/accel"
+
+#: The readiness handshake (README, "Start"): each peer announces itself here once it is ready
+#: (diagnostic_msgs/DiagnosticStatus, name = peer, message "ready", hardware_id = node name;
+#: latched). The simulator starts the lockstep once every peer of ``graph.peers`` is ready.
+READY = "/graph/ready"
 
 #: Topic -> ROS type name of every topic of the graph.
 TOPIC_TYPES: dict[str, str] = {
@@ -82,6 +88,7 @@ CONSUMERS: dict[str, tuple[str, ...]] = {
     TRUTH_CHIEF: (),
     TRUTH_DEPUTY: (),
     TRUTH_ACCEL: (),
+    READY: ("sim",),
 }
 
 #: Which peers publish a topic: what a subscription waits for (reader side) before its node is ready.
@@ -90,11 +97,6 @@ PRODUCERS: dict[str, tuple[str, ...]] = {
     TRUTH_DEPUTY: ("sim",), TRUTH_ACCEL: ("sim",), TIME_SHIFT: ("governor",), ACCEL_CMD: ("controller",),
     DIAGNOSTICS: ("sim", "governor", "controller"),
 }
-
-#: The readiness handshake (README, "Start"): each peer announces itself here once it is ready
-#: (diagnostic_msgs/DiagnosticStatus, name = peer, message "ready", hardware_id = node name;
-#: latched). The simulator starts the lockstep once every peer of ``graph.peers`` is ready.
-READY = "/graph/ready"
 
 #: /tsg/time_shift source when no decision was made at this step: the last verified shift holds.
 PATH_HOLD = "hold"
@@ -257,21 +259,30 @@ class Readiness:
     - each of its publishers is matched (writer side) to its required readers and to every reader
       of that topic discovered on the domain (``waits``),
     - each of its subscriptions is matched to its required publishers (``reads``),
+    - its /graph/ready writer is matched to the simulator's reader (and to every reader of
+      /graph/ready discovered on the domain),
     - ``check()`` (if given) reports nothing missing,
 
     then announces ``ready`` on /graph/ready (DiagnosticStatus: name = peer name, hardware_id =
-    node name, values ``reads`` and ``writes``) and calls ``on_ready`` once. It logs what it waits
-    for; after ``timeout_s`` it logs one error line naming what is missing and ends the node with
-    :data:`EXIT_NO_PEERS` (through the node's ``done`` future, see :func:`run_node`); a
-    ``timeout_s`` of ``inf`` waits for ever (the recorder)."""
+    node name, values ``reads``, ``writes`` and ``wall_ns``) and calls ``on_ready`` once. It logs
+    what it waits for; after ``timeout_s`` it logs one error line naming what is missing and ends
+    the node with :data:`EXIT_NO_PEERS` (through the node's ``done`` future, see
+    :func:`run_node`); a ``timeout_s`` of ``inf`` waits for ever (the recorder).
+
+    The announcement waits for its own writer's match so that it goes to a reader the writer
+    knows, as live data, rather than relying on the latched copy a late-matched reader is owed.
+    (A loaded soak, 2 of 30 missions, once saw the simulator never receive one peer's
+    announcement; the cause measured since was Fast DDS's shared-memory transport, which graphs
+    no longer use: :func:`cikan_ros.ros.launch.dds_environment`, docs/ros_soak.md.)
+    """
 
     def __init__(self, node: Any, peer: str) -> None:
         from diagnostic_msgs.msg import DiagnosticStatus
 
         self.node, self.peer = node, peer
-        self.pub = node.create_publisher(DiagnosticStatus, READY, QOS_LATCHED)
         self.ready = False
         self._timer = None
+        self.pub = self.publisher(DiagnosticStatus, READY, QOS_LATCHED)
 
     def publisher_events(self) -> Any:
         """Event callbacks for the node's publishers: a matched event re-checks at once."""
@@ -305,6 +316,10 @@ class Readiness:
               on_ready: Callable[[], None], check: Callable[[], list[str]] | None = None) -> None:
         from rclpy.clock import Clock, ClockType
 
+        peers = plain(self.node.get_parameter("graph.peers").value) if self.node.has_parameter("graph.peers") \
+            else []
+        # The announcement's own writer too (see the class docstring): matched to the simulator's reader.
+        waits = [*waits, (self.pub, 1 if "sim" in peers else 0)]
         self.waits, self.reads, self.timeout_s, self.on_ready, self.check = waits, reads, timeout_s, \
             on_ready, check
         self._clock = Clock(clock_type=ClockType.STEADY_TIME)
@@ -326,7 +341,8 @@ class Readiness:
             readers = self.node.get_subscriptions_info_by_topic(topic)
             if count >= max(n, len(readers)):
                 continue
-            expected = [p for p in CONSUMERS.get(topic, ()) + ("recorder",) if p in peers]
+            recorded = ("recorder",) if topic in TOPIC_TYPES else ()
+            expected = [p for p in CONSUMERS.get(topic, ()) + recorded if p in peers]
             there = sorted({i.node_name for i in readers})
             out.append(f"{topic}: {count} of {max(n, len(readers))} readers matched (expected "
                        f"{', '.join(expected) or '-'}" + (f"; discovered {', '.join(there)})" if there else ")"))
@@ -366,7 +382,8 @@ class Readiness:
 
         self.ready = True
         values = {"reads": ",".join(s.topic_name for s, _ in self.reads),
-                  "writes": ",".join(p.topic_name for p, _ in self.waits)}
+                  "writes": ",".join(p.topic_name for p, _ in self.waits if p is not self.pub),
+                  "wall_ns": str(time.time_ns())}
         self.pub.publish(DiagnosticStatus(
             level=DiagnosticStatus.OK, name=self.peer, message="ready",
             hardware_id=self.node.get_fully_qualified_name(),
@@ -382,19 +399,21 @@ class PeerWatch:
     checks of the simulator's own endpoints and the announcements of the controller and the
     recorder, whose /tsg/time_shift subscriptions must be matched to it)."""
 
-    def __init__(self, node: Any, peers: Iterable[str], poke: Callable[[], None] = lambda: None) -> None:
+    def __init__(self, readiness: Readiness, peers: Iterable[str]) -> None:
         from diagnostic_msgs.msg import DiagnosticStatus
 
-        self.node, self.poke = node, poke
+        self.node, self.readiness = readiness.node, readiness
         self.peers = [p for p in peers if p != "sim"]
         self.announced: dict[str, str] = {}
-        node.create_subscription(DiagnosticStatus, READY, self.on_ready, QOS_READY_READER)
+        self.sub = self.node.create_subscription(DiagnosticStatus, READY, self.on_ready, QOS_READY_READER)
 
     def on_ready(self, msg: Any) -> None:
         if msg.message == "ready" and msg.name not in self.announced:
             self.announced[msg.name] = msg.hardware_id
-            self.node.get_logger().info(f"{msg.name} ready ({msg.hardware_id})")
-            self.poke()
+            wall = {kv.key: kv.value for kv in msg.values}.get("wall_ns", "")
+            lag = f", {(time.time_ns() - int(wall)) / 1e9:.3f} s after it was said" if wall.isdigit() else ""
+            self.node.get_logger().info(f"{msg.name} ready ({msg.hardware_id}{lag})")
+            self.readiness.poke()
 
     def silent_governor(self) -> str | None:
         """The node name of a governor that keeps today's contract without announcing itself and is
@@ -426,6 +445,8 @@ class PeerWatch:
                            "/tsg/time_shift and reads /deputy/odom or /chief/odom")
             else:
                 out.append(f"{peer}: no announcement on /graph/ready")
+        if out:
+            out.append(f"(/graph/ready: {self.sub.get_publisher_count()} writers matched)")
         return out
 
 

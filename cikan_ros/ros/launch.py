@@ -1,8 +1,9 @@
 """The graph launcher behind ``cikan mission`` (ROS mode) and the ROS benchmark.
 
 Starts recorder_node, governor_node, controller_node and sim_node as separate processes (fresh
-interpreters, own process groups) on an isolated domain: a ROS_DOMAIN_ID of its own,
-ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and a private ROS_LOG_DIR. Every node gets the same
+interpreters, own process groups) on an isolated domain: a ROS_DOMAIN_ID that no other live graph
+of the machine uses (leased for the graph's lifetime, :mod:`cikan_ros.ros.domain`), DDS over
+UDP on the loopback interface only (:func:`dds_environment`) and a private ROS_LOG_DIR. Every node gets the same
 params file (the mission's configuration plus node parameters); ``governor_exec`` runs any
 executable in place of governor_node with the same arguments (the README's governor contract).
 The simulator ends the lockstep; the launcher then stops the governor and the controller, then
@@ -16,7 +17,6 @@ from __future__ import annotations
 
 import os
 import ctypes
-import random
 import shlex
 import shutil
 import signal
@@ -33,8 +33,10 @@ from typing import Any, Callable, Iterable
 import yaml
 
 from ..config import Config
-from ..errors import CikanError
-from .graph import cached_predictor
+from ..errors import CikanError, MissionError
+from ..paths import shipped
+from .domain import lease_domain
+from .graph import EXIT_BAD_INPUT, cached_predictor
 
 #: Module run for each node (``python -m``), in start order: the recorder first, the sim last.
 NODE_MODULES = {
@@ -60,23 +62,25 @@ def write_params(path: Path, cfg: Config, node_params: dict[str, Any]) -> Path:
     return path
 
 
+#: Fast DDS profile of every process of a graph: UDPv4 on the loopback interface, no shared memory
+#: (the file says why).
+FASTDDS_PROFILE = shipped("config/fastdds_udp_localhost.xml")
+
+
+def dds_environment() -> dict[str, str]:
+    """How every process of a graph talks: :data:`FASTDDS_PROFILE`, which rmw_fastrtps applies
+    as it is only with ``ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT`` (``LOCALHOST`` would add
+    the shared-memory transport)."""
+    return {"ROS_AUTOMATIC_DISCOVERY_RANGE": "SYSTEM_DEFAULT", "FASTRTPS_DEFAULT_PROFILES_FILE": str(FASTDDS_PROFILE)}
+
+
 def ros_environment(domain_id: int, log_dir: Path) -> dict[str, str]:
-    """Environment of the children: isolated domain, localhost discovery, private log directory."""
+    """Environment of the children: isolated domain, loopback-only transport
+    (:func:`dds_environment`), private log directory."""
     env = dict(os.environ)
-    env.update(ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-               ROS_LOG_DIR=str(log_dir), PYTHONUNBUFFERED="1", RCUTILS_COLORIZED_OUTPUT="0")
+    env.update(ROS_DOMAIN_ID=str(domain_id), ROS_LOG_DIR=str(log_dir), PYTHONUNBUFFERED="1",
+               RCUTILS_COLORIZED_OUTPUT="0", **dds_environment())
     return env
-
-
-def pick_domain_id() -> int:
-    """$CIKAN_ROS_DOMAIN_ID, or a random domain in 1..101 (Fast DDS kills IDs >= 233)."""
-    env = os.environ.get("CIKAN_ROS_DOMAIN_ID")
-    if env:
-        value = int(env)
-        if not 0 <= value <= 101:
-            raise CikanError(f"CIKAN_ROS_DOMAIN_ID must lie in 0..101, got {value}")
-        return value
-    return random.SystemRandom().randint(1, 101)
 
 
 #: prctl(2) option: the signal a child gets when the thread that started it dies.
@@ -127,6 +131,8 @@ class Graph:
     logs: dict[str, Path] = field(default_factory=dict)
     #: argv (before ``--ros-args``) of a node run by another executable, e.g. ``{"governor": [...]}``.
     commands: dict[str, list[str]] = field(default_factory=dict)
+    #: Descriptors every node inherits: the domain lease's, so the lease lasts while any node runs.
+    pass_fds: tuple[int, ...] = ()
 
     def argv(self, name: str) -> list[str]:
         """Command line of a node: its module (or its replacement) + ``--ros-args --params-file``."""
@@ -141,7 +147,8 @@ class Graph:
             with open(log, "wb") as out:
                 self.procs[name] = subprocess.Popen(
                     self.argv(name), env=env, stdout=out, stderr=subprocess.STDOUT,
-                    stdin=subprocess.DEVNULL, start_new_session=True, preexec_fn=die_with_parent())
+                    stdin=subprocess.DEVNULL, start_new_session=True, preexec_fn=die_with_parent(),
+                    pass_fds=self.pass_fds)
 
     def tail(self, name: str, lines: int = 15) -> str:
         try:
@@ -173,7 +180,9 @@ class Graph:
     def stop_all(self) -> None:
         """Producers first, the recorder last so the bag gets everything and closes."""
         self.stop(["sim", "governor", "controller"])
-        self.stop(["recorder"], timeout_s=20.0)
+        from .recorder import MAX_DRAIN_S
+
+        self.stop(["recorder"], timeout_s=MAX_DRAIN_S + 30.0)   # it drains all it holds, then closes
 
 
 def default_bag_path(governor: str) -> Path:
@@ -218,7 +227,8 @@ def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | Non
     CikanError line naming the node, its exit code, its last error line and where the logs are;
     a bag without a message is removed then, a bag with messages is kept (closed, readable).
     """
-    from .record import recorded_metrics
+    from .graph import ACCEL_CMD, TIME_SHIFT
+    from .record import check_messages, read_bag, recorded_metrics
 
     commands = {"governor": exec_command(governor_exec)} if governor_exec is not None else {}
     if governor_exec is not None:
@@ -232,15 +242,20 @@ def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | Non
               "sim.stop_on_dock": bool(stop_on_dock), "recorder.bag": str(bag_path.resolve()),
               "mission.approach": cfg.mission.approach,
               "graph.peers": ["sim", "governor", "controller", "recorder"], **(node_params or {})}
-    graph = Graph(workdir, ros_environment(pick_domain_id(), workdir / "ros_log"),
-                  write_params(workdir / "params.yaml", cfg, params), commands=commands)
+    lease = lease_domain()   # held until every node has ended: no other graph flies on it
+    graph = Graph(workdir, ros_environment(lease.domain, workdir / "ros_log"),
+                  write_params(workdir / "params.yaml", cfg, params), commands=commands,
+                  pass_fds=lease.fds())
     failure: str | None = None
+    bad_input = False   # a node refused its input (exit code 2): cikan's bad input, not a failed mission
     wall0 = time.perf_counter()
 
     def terminate(_signum: int, _frame: Any) -> None:
         raise KeyboardInterrupt
 
     def exited(name: str, rc: int) -> str:
+        nonlocal bad_input
+        bad_input = rc == EXIT_BAD_INPUT
         who = f"governor ({governor})" if name in commands else f"{name}_node"
         return f"{who} exited with code {rc}: {graph.reason(name)}"
 
@@ -265,6 +280,7 @@ def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | Non
             failure = exited("sim", sim.returncode)
     finally:
         graph.stop_all()
+        lease.release()
         if main_thread:
             signal.signal(signal.SIGTERM, previous)
         if failure is None and keep_logs:
@@ -273,17 +289,49 @@ def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | Non
             shutil.rmtree(workdir, ignore_errors=True)
     if failure is not None:
         kept = "removed the empty bag" if discard_empty_bag(bag_path) else f"bag kept in {bag_path}"
-        raise CikanError(f"{failure} ({kept}; node logs in {workdir})")
+        raise (CikanError if bad_input else MissionError)(f"{failure} ({kept}; node logs in {workdir})")
     wall = time.perf_counter() - wall0
     rc = graph.procs["recorder"].returncode
     if rc != 0:
-        raise CikanError(f"recorder_node ended abnormally (exit code {rc}): the bag {bag_path} holds "
+        raise MissionError(f"recorder_node ended abnormally (exit code {rc}): the bag {bag_path} holds "
                          "the messages up to its last flushed chunk; no metrics computed")
-    _, metrics = recorded_metrics(bag_path, cfg, governor)
+    msgs = read_bag(bag_path)
+    steps = recorded_steps(bag_path, msgs, cfg)
+    _, metrics = recorded_metrics(bag_path, cfg, governor, msgs)
     metrics["bag"] = str(bag_path)
-    metrics["ros"] = {"launch_wall_s": wall, **metrics.get("ros", {}),
+    metrics["ros"] = {"launch_wall_s": wall, **metrics.get("ros", {}), "domain_id": lease.domain,
                       "exit_codes": {n: p.returncode for n, p in graph.procs.items()}}
-    return lockstep_verdict(metrics)
+    metrics = lockstep_verdict(metrics)
+    if not metrics["lockstep_deadlines"]:
+        # Every step was answered in the lockstep: the controller had each shift, the simulator
+        # each command, so the bag must hold them too.
+        lost = check_messages(msgs, cfg, steps, (TIME_SHIFT, ACCEL_CMD))["lost_on"]
+        if lost:
+            raise MissionError(f"the bag {bag_path} lacks messages the lockstep delivered ({lost} of "
+                               f"{steps} steps): the recorder lost them; no metrics reported")
+    return metrics
+
+
+def recorded_steps(bag: Path, msgs: dict[str, list[tuple[int, Any]]], cfg: Config) -> int:
+    """K, the steps the simulator flew, from its mission-complete record in the bag; MissionError
+    (one line) if the bag lacks that record or any message of the simulator's topics at any of
+    the K steps, or holds one twice or off the grid: a bag cut short or with holes is a failed
+    mission, never a shorter one."""
+    from .record import SIM_TOPICS, check_messages, sim_summary
+
+    summary = sim_summary(msgs)
+    if summary is None:
+        raise MissionError(f"the bag {bag} lacks the simulator's mission-complete record: the recorder "
+                           "stopped before the mission's end (bag kept; no metrics reported)")
+    steps = int(summary["steps"])
+    check = check_messages(msgs, cfg, steps, SIM_TOPICS)
+    if check["lost"] or check["duplicated"] or check["off_grid"]:
+        what = ", ".join(f"{n} {w}" for n, w in ((check["lost"], "lost"), (check["duplicated"], "duplicated"),
+                                                 (check["off_grid"], "off the grid")) if n)
+        raise MissionError(f"the bag {bag} does not hold the mission's {steps} steps: {what}"
+                           + (f" ({check['lost_on']})" if check["lost_on"] else "")
+                           + " (bag kept; no metrics reported)")
+    return steps
 
 
 def lockstep_verdict(metrics: dict[str, Any]) -> dict[str, Any]:

@@ -33,7 +33,7 @@ from ..governor import UpdateRecord
 from ..mission import MissionResult, Schedule
 from ..units import m_to_km
 from .convert import MessageError, Timeline, accel_from_msg, diagnostic_values, floats, shift_from_msg, time_to_ns
-from .graph import (ACCEL_CMD, CHIEF_ODOM, DEPUTY_ODOM, DIAGNOSTICS, TIME_SHIFT, TRUTH_ACCEL,
+from .graph import (ACCEL_CMD, CHIEF_ODOM, CLOCK, DEPUTY_ODOM, DIAGNOSTICS, TIME_SHIFT, TRUTH_ACCEL,
                     TRUTH_CHIEF, TRUTH_DEPUTY)
 
 
@@ -51,6 +51,73 @@ def read_bag(path: str | Path) -> dict[str, list[tuple[int, Any]]]:
         for conn, t, raw in reader.messages():
             out.setdefault(conn.topic, []).append((t, reader.deserialize(raw, conn.msgtype)))
     return out
+
+
+#: The simulator's topics, published at every state t_0..t_K or step t_0..t_{K-1} whatever the
+#: other nodes do: a bag that lacks one of their messages lost it.
+SIM_TOPICS = (CLOCK, CHIEF_ODOM, DEPUTY_ODOM, TRUTH_CHIEF, TRUTH_DEPUTY, TRUTH_ACCEL)
+#: Name of the simulator's per-step records in :func:`check_messages` (on /diagnostics).
+SIM_STEPS = "/diagnostics (sim steps)"
+
+
+def expected_stamps(n_steps: int) -> dict[str, int]:
+    """Topic -> number of steps it carries a message for: the states of t_0..t_K, one shift and
+    one command for each of t_0..t_{K-1}."""
+    states = {t: n_steps + 1 for t in (CLOCK, CHIEF_ODOM, DEPUTY_ODOM, TRUTH_CHIEF, TRUTH_DEPUTY)}
+    return {**states, TIME_SHIFT: n_steps, ACCEL_CMD: n_steps, TRUTH_ACCEL: n_steps}
+
+
+def check_messages(msgs: dict[str, list[tuple[int, Any]]], cfg: Config, n_steps: int,
+                   topics: tuple[str, ...] | None = None) -> dict[str, Any]:
+    """Lost, duplicated and off-grid messages of a recorded lockstep mission of ``n_steps`` steps:
+    each topic of ``topics`` (default all of :func:`expected_stamps`) holds one message for each
+    of its stamps, none twice, none off the T_c grid, each logged at its own stamp; the
+    simulator's /diagnostics holds one step record for each step. ``lost_on``: where."""
+    from .convert import diagnostic_values
+
+    tl = Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
+    expected = expected_stamps(n_steps)
+    lost = dup = off = total = 0
+    where: dict[str, int] = {}
+    for topic in topics or tuple(expected):
+        n = expected[topic]
+        ks = []
+        for log_time, m in msgs.get(topic, []):
+            stamp = time_to_ns(m.clock if topic == CLOCK else m.header.stamp)
+            try:
+                k = tl.step(stamp)
+            except MessageError:
+                off += 1
+                continue
+            off += log_time != stamp   # the recorder logs every message at its own stamp
+            ks.append(k)
+        total += len(ks)
+        missing = len(set(range(n)) - set(ks))
+        lost += missing
+        if missing:
+            where[topic] = missing
+        dup += len(ks) - len(set(ks))
+        off += sum(1 for k in ks if not 0 <= k < n)
+    steps = [int(diagnostic_values(s)["k"]) for _, arr in msgs.get(DIAGNOSTICS, []) for s in arr.status
+             if s.name == "sim_node" and diagnostic_values(s).get("event") == "step"]
+    missing = len(set(range(n_steps)) - set(steps))
+    lost += missing
+    if missing:
+        where[SIM_STEPS] = missing
+    dup += len(steps) - len(set(steps))
+    total += sum(len(v) for t, v in msgs.items() if t not in expected)
+    return {"steps": n_steps, "messages": total, "lost": lost, "duplicated": dup, "off_grid": off,
+            "lost_on": ", ".join(f"{t} {n}" for t, n in where.items())}
+
+
+def sim_summary(msgs: dict[str, list[tuple[int, Any]]]) -> dict[str, str] | None:
+    """The values of the simulator's mission-complete record, or None if the bag lacks it."""
+    for _, arr in msgs.get(DIAGNOSTICS, []):
+        for st in arr.status:
+            v = diagnostic_values(st)
+            if st.name == "sim_node" and v.get("event") == "complete":
+                return v
+    return None
 
 
 def _state(msg: Any) -> np.ndarray:
@@ -78,10 +145,12 @@ def _first_valid(msgs: list[tuple[int, Any]], tl: Timeline, decode: Any) -> dict
     return out
 
 
-def mission_from_bag(path: str | Path, cfg: Config, governor: str) -> tuple[MissionResult, dict[str, Any]]:
+def mission_from_bag(path: str | Path, cfg: Config, governor: str,
+                     msgs: dict[str, list[tuple[int, Any]]] | None = None) -> tuple[MissionResult, dict[str, Any]]:
     """(MissionResult, the simulator's summary values + ``missing_shifts``) of a recorded lockstep
-    mission. ``missing_shifts``: steps 0..K-1 with no valid time shift (the controller held)."""
-    msgs = read_bag(path)
+    mission. ``missing_shifts``: steps 0..K-1 with no valid time shift (the controller held).
+    ``msgs``: the bag's messages if already read (:func:`read_bag`)."""
+    msgs = read_bag(path) if msgs is None else msgs
     tl = Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
     def states(topic: str) -> dict[int, np.ndarray]:
         return {tl.step(time_to_ns(m.header.stamp)): _state(m) for _, m in msgs.get(topic, [])}
@@ -154,7 +223,8 @@ def mission_from_bag(path: str | Path, cfg: Config, governor: str) -> tuple[Miss
     return result, summary
 
 
-def recorded_metrics(path: str | Path, cfg: Config, governor: str) -> tuple[MissionResult, dict[str, Any]]:
+def recorded_metrics(path: str | Path, cfg: Config, governor: str,
+                     msgs: dict[str, list[tuple[int, Any]]] | None = None) -> tuple[MissionResult, dict[str, Any]]:
     """(MissionResult, metrics) of a recorded mission: :meth:`MissionResult.metrics`, plus the
     governor contract audit of its shifts (:func:`cikan_ros.mission.audit_shifts`):
     ``unverified_shifts``, ``off_schedule_shifts`` and ``missing_shifts`` (steps with no valid
@@ -163,7 +233,7 @@ def recorded_metrics(path: str | Path, cfg: Config, governor: str) -> tuple[Miss
     from ..mission import audit_shifts
     from ..tsg import Predictor
 
-    result, summary = mission_from_bag(path, cfg, governor)
+    result, summary = mission_from_bag(path, cfg, governor, msgs)
     seen_d = result.x_d if result.x_d_seen is None else result.x_d_seen
     seen_c = None if result.x_c_seen is None else result.x_c_seen
     audit = audit_shifts(Predictor.from_config(cfg), seen_d, result.tau, seen_c)

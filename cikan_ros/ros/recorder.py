@@ -4,7 +4,8 @@ Messages are logged at their own stamp (header.stamp, or the Clock's time): the 
 sim-time record in which the messages of step k share t_k, whatever their arrival order.
 Chunks are flushed every ``recorder.flush_period_s`` (wall) or ``recorder.chunk_bytes``, so a
 crash loses at most the chunk in progress (see :mod:`cikan_ros.ros.bag`). SIGINT/SIGTERM: the
-recorder keeps taking messages until none came for ``recorder.drain_s``, then closes the bag.
+recorder keeps taking messages until none came for ``recorder.drain_s`` (at most
+:data:`MAX_DRAIN_S`), then closes the bag.
 The governor's announcements (/tsg/governor, latched) go into the bag's metadata (custom_data
 ``cikan_ros.governor``: the governors that flew, in order; ``cikan_ros.governor_announcements``).
 """
@@ -32,6 +33,11 @@ from .graph_spec import UTC_FORMAT
 from .params import NodeSpec, declare_parameters
 
 NAME = "recorder_node"
+#: On SIGINT/SIGTERM the recorder drains until no message came for ``recorder.drain_s``, at most
+#: this long (wall). Its producers have stopped by then, so the stream ends; a recorder starved
+#: of CPU may be far behind it, and what it still holds in its readers is part of the mission
+#: (with a cap of 10 s, three bags of a loaded soak lacked the last 200-1200 steps of every topic).
+MAX_DRAIN_S = 300.0
 #: Parameters: the groups recorder and graph of config/nodes.yaml, and the mission configuration
 #: (for the bag).
 SPEC = NodeSpec(NAME, __doc__, ("recorder", "graph"))
@@ -122,7 +128,7 @@ class RecorderNode(Node):
         if not self.stopping or self.done.done():
             return
         now = time.monotonic()
-        if now - self.last_message >= self.drain_s or now - self.stop_requested_at > 10.0:
+        if now - self.last_message >= self.drain_s or now - self.stop_requested_at > MAX_DRAIN_S:
             self.done.set_result(True)
 
     def close(self) -> None:

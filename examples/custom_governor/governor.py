@@ -26,9 +26,9 @@ class CustomGovernor(Node):
         self.wait = self.create_timer(0.02, self.join)
 
     def join(self) -> None:                            # subscribe once the shift's readers match
+        # pi* needs the deputy's state only: the chief's orbit is the prediction model's
         if self.pub.get_subscription_count() >= self.readers:
             self.wait.cancel()
-            self.create_subscription(Odometry, "/chief/odom", lambda _: None, 1000)  # pi* needs x_d only
             self.create_subscription(Odometry, "/deputy/odom", self.on_deputy, 1000)
 
     def on_deputy(self, msg: Odometry) -> None:

@@ -20,7 +20,6 @@ class RogueGovernor(Node):
     def join(self) -> None:
         if self.pub.get_subscription_count() >= 2:   # the controller and the recorder of `cikan mission`
             self.wait.cancel()
-            self.create_subscription(Odometry, "/chief/odom", lambda _: None, 1000)
             self.create_subscription(Odometry, "/deputy/odom", self.on_deputy, 1000)
 
     def on_deputy(self, msg: Odometry) -> None:

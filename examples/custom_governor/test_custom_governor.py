@@ -20,7 +20,7 @@ CIKAN = Path(sys.executable).parent / "cikan"
 
 def fly(tmp_path: Path, governor: str, *args: str) -> subprocess.CompletedProcess:
     """`cikan mission --governor-exec "python governor"` recorded to tmp_path/bag."""
-    env = {**os.environ, "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST", "ROS_LOG_DIR": str(tmp_path / "log"),
+    env = {**os.environ, "ROS_LOG_DIR": str(tmp_path / "log"),
            "TMPDIR": str(tmp_path)}
     return subprocess.run([str(CIKAN), "mission", "--governor-exec", f"{sys.executable} {HERE / governor}",
                            "--bag", str(tmp_path / "bag"), *args], capture_output=True, text=True, env=env)
