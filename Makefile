@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 EXTRAS := ros,learn,report,dev
 
-.PHONY: install run test bench montecarlo results robustness controller-sweep models models-prev scenario-data scenario-models scenario-result scenario-results scenario-bench bad-networks clean
+.PHONY: install run test bench montecarlo results robustness controller-sweep models models-prev scenario-data scenario-models scenario-result scenario-results scenario-index scenario-bench bad-networks clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -143,6 +143,12 @@ scenario-results: $(STAMP)
 	for s in $(SCENARIOS); do for a in $(APPROACHES); do \
 	  $(MAKE) scenario-result SCENARIO=$$s APPROACH=$$a || exit 1; \
 	done; done
+	$(MAKE) scenario-index
+
+# The index of every scenario campaign flown so far (docs/results/scenarios/README.md).
+scenario-index: $(STAMP)
+	$(BIN)/cikan report runs/scenario-results --scenarios --out docs/results/scenarios \
+		--notes docs/results/scenarios_notes.md
 
 # Networks that do not fit (docs/learned_update_rule.md): a random-weight CIKAN (the shipped
 # architecture, untrained) and a one-epoch ReLU (8 wide, 2 layers) on 3,000 labels, flown under
