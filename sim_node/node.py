@@ -21,7 +21,6 @@ import numpy as np
 from geometry_msgs.msg import AccelStamped
 from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
-from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.task import Future
 from diagnostic_msgs.msg import DiagnosticArray
@@ -38,10 +37,6 @@ from cikan_ros.truth import Truth
 from cikan_ros.ros.params import NodeSpec, declare_parameters
 
 NAME = "sim_node"
-#: How long (wall) the simulator, at the end, waits for every reader (the recorder) to acknowledge
-#: its messages: reliable samples a reader has not acknowledged die with their writer. A reader's
-#: middleware threads acknowledge on reception, however far behind its executor is.
-ACK_BUDGET_S = 30.0
 #: Parameters: the groups sim and graph of config/nodes.yaml, and the mission configuration.
 SPEC = NodeSpec(NAME, __doc__, ("sim", "graph"))
 
@@ -208,21 +203,6 @@ class SimNode(Node):
         self.get_logger().info(f"mission complete: {self.k} steps in {wall:.2f} s "
                                f"(rtf {values['rtf']:.0f}), {self.misses} deadline misses")
         self.done.set_result(True)
-
-    def close(self) -> None:
-        """Let every reliable reader acknowledge the last messages before the process ends."""
-        if not self.done.done():
-            return
-        end = time.monotonic() + ACK_BUDGET_S
-        for pub in (self.pub_clock, self.pub_chief, self.pub_deputy, self.pub_diag,
-                    self.pub_truth_chief, self.pub_truth_deputy, self.pub_truth_accel):
-            try:
-                if not pub.wait_for_all_acked(Duration(seconds=max(0.0, end - time.monotonic()))):
-                    self.get_logger().warning(f"{pub.topic_name}: not every reader acknowledged the last "
-                                              f"messages within {ACK_BUDGET_S:g} s")
-            except Exception:  # the context may already be shut down by a signal
-                return
-
 
 def main(args: list[str] | None = None) -> int:
     """Console entry point ``sim_node``."""

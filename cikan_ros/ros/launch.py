@@ -179,9 +179,11 @@ class Graph:
 
     def stop_all(self) -> None:
         """Producers first, the recorder last so the bag gets everything and closes."""
-        self.stop(["sim", "governor", "controller"])
+        from .graph import ACK_BUDGET_S
         from .recorder import MAX_DRAIN_S
 
+        # each waits for its readers' acknowledgements before it ends (graph.wait_acknowledged)
+        self.stop(["sim", "governor", "controller"], timeout_s=ACK_BUDGET_S + 10.0)
         self.stop(["recorder"], timeout_s=MAX_DRAIN_S + 30.0)   # it drains all it holds, then closes
 
 
