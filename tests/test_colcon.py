@@ -64,9 +64,11 @@ def test_install_layout(installs: dict[str, Path], mode: str) -> None:
     share = prefix / "share" / "cikan_ros"
     assert (prefix / "share" / "ament_index" / "resource_index" / "packages" / "cikan_ros").is_file()
     expected = ["package.xml", "config/cikan.yaml", "config/nodes.yaml", "launch/mission.launch.yaml",
+                "config/scenarios/paper.yaml", "config/scenarios/leo.yaml", "config/scenarios/geo.yaml",
                 "models/README.md"] + [f"models/{f}/{name}" for f in FAMILIES
                                        for name in ("model.safetensors", "card.json")]
-    assert len(FAMILIES) == 5
+    # the paper's five families, and the scenarios' models in their subdirectories
+    assert {"cikan", "grbf", "rswaf", "relu", "gelu", "leo/cikan-ahead"} <= set(FAMILIES)
     for rel in expected:
         assert sha256(share / rel) == sha256(ROOT / rel), rel       # the same bytes as the source
 
