@@ -52,6 +52,12 @@ def update_index(t: float, update_period_s: float) -> int:
     return int(round(t / update_period_s))
 
 
+def is_active(tau_prev: float) -> bool:
+    """An update searches when its previous shift is set and away from 0 (either side of the
+    chief); the first instant (tau_prev NaN) and tau_prev = 0 do not."""
+    return tau_prev != 0.0 and not math.isnan(tau_prev)
+
+
 @dataclass(frozen=True)
 class UpdateRecord:
     """One governor decision: the shift (s), the path taken, Verify calls, wall time (s), the
@@ -73,7 +79,7 @@ class UpdateRecord:
     @property
     def active(self) -> bool:
         """The update searched (a previous shift away from 0, on either side of the chief)."""
-        return self.tau_prev != 0.0 and not math.isnan(self.tau_prev)
+        return is_active(self.tau_prev)
 
 
 @runtime_checkable

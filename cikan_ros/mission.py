@@ -20,7 +20,7 @@ from .config import Config
 from .constraints import Margins, margins
 from .control import ftre_control
 from .errors import NoFeasibleShiftError, StateError
-from .governor import Governor, UpdateRecord
+from .governor import Governor, UpdateRecord, is_active
 from .orbit import check_states
 from .truth import Truth
 from .tsg import ChiefAnchor, Predictor
@@ -264,7 +264,7 @@ class UpdateState:
 
     @property
     def active(self) -> bool:
-        return self.tau_prev != 0.0 and not math.isnan(self.tau_prev)
+        return is_active(self.tau_prev)
 
 
 def update_states(cfg: Config, t: NDArray, x_d: NDArray, x_c: NDArray,
@@ -275,7 +275,7 @@ def update_states(cfg: Config, t: NDArray, x_d: NDArray, x_c: NDArray,
     per_update = round(cfg.tsg.update_period_s / cfg.control.period_s)
     out = []
     for k, tau_prev, tau in updates:
-        if active_only and not (tau_prev != 0.0 and not math.isnan(tau_prev)):
+        if active_only and not is_active(tau_prev):
             continue
         step = int(k) * per_update
         out.append(UpdateState(int(k), float(t[step]), through_si(x_d[step]), through_si(x_c[step]),

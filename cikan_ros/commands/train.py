@@ -133,15 +133,10 @@ def run(args: argparse.Namespace) -> int:
                       threads=args.threads, max_train=args.max_train, **hp)
     data = load_data(args.data, args.features)
     if args.out is None:
-        from ..learn.modelfile import card_scenario, scenario_model_dir
+        from ..learn.modelfile import check_dataset_scenario, scenario_model_dir
 
         cfg_run = config_from_args(args)
-        want = {"name": cfg_run.scenario.name, "approach": cfg_run.mission.approach}
-        if card_scenario(data.meta) != want:
-            from ..learn.errors import DatasetError
-
-            raise DatasetError(f"dataset {data.path} is of scenario {card_scenario(data.meta)}, not "
-                               f"{want}: give --scenario/--set mission.approach of the dataset, or --out")
+        check_dataset_scenario(data.meta, data.path, cfg_run.scenario.name, cfg_run.mission.approach)
         args.out = str(scenario_model_dir(cfg_run.scenario.models_dir, args.model, cfg_run.mission.approach))
     ckpt = args.checkpoint_dir or str(Path("runs/checkpoints") / Path(args.out).name)
     res = train(arch, data, cfg, args.out, checkpoint_dir=ckpt, resume=args.resume,

@@ -42,17 +42,15 @@ def run(args: argparse.Namespace) -> int:
     if args.storage.startswith("sqlite:///"):
         Path(args.storage[len("sqlite:///"):]).parent.mkdir(parents=True, exist_ok=True)
     data = load_data(args.data, args.features)
-    from ..learn.modelfile import card_scenario
+    from ..learn.modelfile import check_dataset_scenario
 
     cfg = config_from_args(args)
-    want = {"name": cfg.scenario.name, "approach": cfg.mission.approach}
-    if card_scenario(data.meta) != want:
-        raise DatasetError(f"dataset {args.data} is of scenario {card_scenario(data.meta)}, not {want}: "
-                           "give the dataset's --scenario and --set mission.approach")
-    if args.study_name is None and want != {"name": "paper", "approach": "behind"}:
+    check_dataset_scenario(data.meta, data.path, cfg.scenario.name, cfg.mission.approach)
+    if args.study_name is None and (cfg.scenario.name, cfg.mission.approach) != ("paper", "behind"):
         from ..learn.tune import study_name_for
 
-        args.study_name = f"{study_name_for(args.model, args.features)}-{want['name']}-{want['approach']}"
+        args.study_name = (f"{study_name_for(args.model, args.features)}-{cfg.scenario.name}"
+                           f"-{cfg.mission.approach}")
     summary = run_tune(args.model, data, args.trials, args.storage, args.study_name, args.epochs,
                        args.max_train, args.trial_minutes, args.seed, args.threads, args.timeout)
     if args.json:

@@ -114,6 +114,16 @@ def card_scenario(meta: Mapping[str, Any]) -> dict[str, str]:
             "approach": str(meta.get("approach", flat.get("mission.approach", "behind")))}
 
 
+def check_dataset_scenario(meta: Mapping[str, Any], path: str, scenario: str, approach: str) -> None:
+    """DatasetError unless the dataset (metadata ``meta``) is of ``scenario`` and ``approach``."""
+    want = {"name": scenario, "approach": approach}
+    if card_scenario(meta) != want:
+        from .errors import DatasetError
+
+        raise DatasetError(f"dataset {path} is of scenario {card_scenario(meta)}, not {want}: give "
+                           "the dataset's --scenario and --set mission.approach")
+
+
 def model_scenario(card: Mapping[str, Any]) -> dict[str, str]:
     """``{"name": scenario, "approach": side}`` a model card declares (cards written before
     scenarios existed: the paper's, from behind; their dataset says so)."""
