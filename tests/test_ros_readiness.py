@@ -168,5 +168,5 @@ def test_soak_and_mission_check_every_bag(ros_env: int, tmp_path: Path) -> None:
     hole = last - 20 * 10**10
     copy_bag(bag, tmp_path / "hole", lambda topic, t: not (topic == "/truth/deputy/odom" and t == hole))
     with pytest.raises(MissionError, match=r"^the bag .*hole does not hold the mission's 30 steps: 1 lost "
-                                           r"\(/truth/deputy/odom 1\) \(bag kept; no metrics reported\)$"):
+                                           r"\(/truth/deputy/odom 1 \(k 10\)\) \(bag kept; no metrics reported\)$"):
         recorded_steps(tmp_path / "hole", read_bag(tmp_path / "hole"), cfg)

@@ -77,7 +77,7 @@ def check_messages(msgs: dict[str, list[tuple[int, Any]]], cfg: Config, n_steps:
     tl = Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
     expected = expected_stamps(n_steps)
     lost = dup = off = total = 0
-    where: dict[str, int] = {}
+    where: dict[str, list[int]] = {}
     for topic in topics or tuple(expected):
         n = expected[topic]
         ks = []
@@ -91,22 +91,34 @@ def check_messages(msgs: dict[str, list[tuple[int, Any]]], cfg: Config, n_steps:
             off += log_time != stamp   # the recorder logs every message at its own stamp
             ks.append(k)
         total += len(ks)
-        missing = len(set(range(n)) - set(ks))
-        lost += missing
+        missing = sorted(set(range(n)) - set(ks))
+        lost += len(missing)
         if missing:
             where[topic] = missing
         dup += len(ks) - len(set(ks))
         off += sum(1 for k in ks if not 0 <= k < n)
     steps = [int(diagnostic_values(s)["k"]) for _, arr in msgs.get(DIAGNOSTICS, []) for s in arr.status
              if s.name == "sim_node" and diagnostic_values(s).get("event") == "step"]
-    missing = len(set(range(n_steps)) - set(steps))
-    lost += missing
+    missing = sorted(set(range(n_steps)) - set(steps))
+    lost += len(missing)
     if missing:
         where[SIM_STEPS] = missing
     dup += len(steps) - len(set(steps))
     total += sum(len(v) for t, v in msgs.items() if t not in expected)
     return {"steps": n_steps, "messages": total, "lost": lost, "duplicated": dup, "off_grid": off,
-            "lost_on": ", ".join(f"{t} {n}" for t, n in where.items())}
+            "lost_on": ", ".join(f"{t} {len(ks)} (k {_ranges(ks)})" for t, ks in where.items())}
+
+
+def _ranges(ks: list[int], most: int = 3) -> str:
+    """Sorted step numbers as ranges: ``3, 7-9, 12``, the first ``most`` of them then ``...``."""
+    runs: list[list[int]] = []
+    for k in ks:
+        if runs and k == runs[-1][1] + 1:
+            runs[-1][1] = k
+        else:
+            runs.append([k, k])
+    text = [f"{a}" if a == b else f"{a}-{b}" for a, b in runs[:most]]
+    return "; ".join(text) + ("; ..." if len(runs) > most else "")
 
 
 def sim_summary(msgs: dict[str, list[tuple[int, Any]]]) -> dict[str, str] | None:
