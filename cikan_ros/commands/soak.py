@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import subprocess
 import sys
 import tempfile
@@ -50,14 +51,21 @@ def run(args: argparse.Namespace) -> int:
     import shutil
 
     from ..errors import CikanError
-    from ..ros.launch import run_ros_mission
+    from ..ros.launch import die_with_parent, run_ros_mission
 
     cfg = config_from_args(args)
     out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="cikan_soak_"))
     out.mkdir(parents=True, exist_ok=True)
-    load = [subprocess.Popen([sys.executable, "-c", "while True: pass"], stdin=subprocess.DEVNULL)
+    # The busy loops end with the soak, however it ends (SIGKILL included).
+    load = [subprocess.Popen([sys.executable, "-c", "while True: pass"], stdin=subprocess.DEVNULL,
+                             preexec_fn=die_with_parent())
             for _ in range(os.cpu_count() or 1)] if args.load else []
     rows: list[dict[str, Any]] = []
+
+    def terminate(_signum: int, _frame: Any) -> None:
+        raise KeyboardInterrupt   # SIGTERM ends the soak as Ctrl-C does: the finally below cleans up
+
+    previous = signal.signal(signal.SIGTERM, terminate)
     try:
         for i in range(args.runs):
             bag = out / f"run_{i:03d}"
@@ -84,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
             if not args.out:
                 shutil.rmtree(bag, ignore_errors=True)
     finally:
+        signal.signal(signal.SIGTERM, previous)
         for p in load:
             p.kill()
             p.wait()
