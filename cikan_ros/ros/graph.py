@@ -456,13 +456,16 @@ def _rcl_message(exc: BaseException) -> str:
 
 
 #: How long (wall) a node that ends waits, in all, for every reliable reader to acknowledge what
-#: its publishers sent (:func:`wait_acknowledged`).
-ACK_BUDGET_S = 20.0
+#: its publishers sent (:func:`wait_acknowledged`). Live readers acknowledge within a heartbeat
+#: (0.1 s, config/fastdds_udp_localhost.xml); what outlasts this is a reader that died without a
+#: word (a process killed outright), whose participant Fast DDS drops only when its lease ends.
+ACK_BUDGET_S = 5.0
 
 
 def wait_acknowledged(node: Any, budget_s: float = ACK_BUDGET_S) -> list[str]:
     """Wait until every reader matched to each of ``node``'s publishers has acknowledged all it
-    was sent, at most ``budget_s`` in all; return (and log) the topics not acknowledged in time.
+    was sent, at most ``budget_s`` in all; return (and log) the topics not acknowledged in time
+    (should a live reader be one of them, the launcher's bag check fails the mission).
     Reliable samples a reader has not acknowledged die with their writer: measured, a loaded
     soak's bag lacked the controller's last commands (155 of 1440) that the controller, stopped
     right after the simulator ended, had sent but the recorder had not yet received. A reader's
