@@ -717,6 +717,24 @@ class Predictor:
         return ns_to_seconds(tau), int(calls)
 
 
+@nb.njit(cache=True)
+def anchor_offset_kernel(orb: NDArray, t: float, x_c: NDArray, model: NDArray) -> tuple[float, float]:
+    """Largest position (km) and velocity (km/s) component of x_c - x_model(t), the model chief
+    of ``orb`` at t written into ``model`` (6,); NaN when x_c is not finite. One compiled call:
+    every update anchors, and the numpy version of these lines cost ~15 us a call."""
+    state_kernel(orb, t, model)
+    dp = 0.0
+    dv = 0.0
+    for i in range(3):
+        a = abs(x_c[i] - model[i])
+        b = abs(x_c[3 + i] - model[3 + i])
+        if a != a or b != b:
+            return math.nan, math.nan
+        dp = max(dp, a)
+        dv = max(dv, b)
+    return dp, dv
+
+
 class ChiefAnchor:
     """The chief of the prediction model, anchored on the chief state a governor or controller
     receives (SPEC §2 takes it from the configured elements; a real chief drifts from them).
@@ -744,10 +762,10 @@ class ChiefAnchor:
 
     def __call__(self, x_c: ArrayLike, t: float) -> Predictor:
         x = np.asarray(x_c, dtype=float)
-        model = self._model
-        state_kernel(self.current.orbit.params, float(t), model)
-        dp = float(np.max(np.abs(x[:3] - model[:3])))
-        dv = float(np.max(np.abs(x[3:] - model[3:])))
+        if x.shape != (6,):
+            check_states(x, "chief state x_c")
+            raise StateError(f"chief state x_c must have shape (6,), got {x.shape}")
+        dp, dv = anchor_offset_kernel(self.current.orbit.params, float(t), x, self._model)
         if dp <= self._tol[0] and dv <= self._tol[1]:
             return self.current
         if not math.isfinite(dp + dv):

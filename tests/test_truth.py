@@ -11,7 +11,7 @@ from scipy.integrate import solve_ivp
 
 from cikan_ros.config import load_config, truth_overrides
 from cikan_ros.dynamics import J2_EARTH, R_EARTH_KM, j2_acceleration, rk4_step
-from cikan_ros.errors import ConfigError
+from cikan_ros.errors import ConfigError, StateError
 from cikan_ros.orbit import KeplerOrbit
 from cikan_ros.truth import Truth, gauss_markov
 from cikan_ros.tsg import ChiefAnchor, Predictor
@@ -122,6 +122,26 @@ def test_chief_anchor_follows_the_measured_chief():
                     (600.0, 900.0), moved, method="DOP853", rtol=1e-12, atol=1e-12).y[:, -1]
     np.testing.assert_allclose(new.orbit.state(900.0)[:3], ref[:3], atol=1e-7)
     assert anchor(new.orbit.state(610.0), 610.0) is new  # within tolerance: no new chief table
+
+
+def test_chief_anchor_tolerance_is_per_component_and_bad_states_are_named():
+    cfg = load_config()
+    pred = Predictor.from_config(cfg)
+    anchor = ChiefAnchor(pred)
+    tol = cfg.tsg.chief_anchor_tolerance_km
+    x_c = pred.orbit.state(600.0)
+    # the largest component counts, position (km) and velocity (km/s per sample period) apart
+    assert anchor(x_c + np.array([0, 0, 0.9 * tol, 0, 0, 0]), 600.0) is pred
+    assert anchor(x_c + np.array([0, 0, 0, 0, -0.9 * tol / cfg.tsg.sample_period_s, 0]), 600.0) is pred
+    assert anchor.re_anchors == 0
+    assert anchor(x_c + np.array([0, 0, 0, 0, -1.1 * tol / cfg.tsg.sample_period_s, 0]), 600.0) is not pred
+    assert anchor.re_anchors == 1
+    for bad in (np.where(np.arange(6) == 4, np.nan, x_c), np.where(np.arange(6) == 0, np.inf, x_c)):
+        with pytest.raises(StateError, match="chief state x_c"):
+            anchor(bad, 600.0)
+    with pytest.raises(StateError, match="shape"):
+        anchor(x_c[:5], 600.0)
+    assert anchor.re_anchors == 1
 
 
 @pytest.mark.parametrize("key,value", [("truth.nav_pos_floor_km", -1.0),
