@@ -314,6 +314,7 @@ class LearnedConfig:
     trust_credit: int = 3
     trust_hits: int = 3
     audit_step: float = 0.1
+    stall_updates: int = 5
     trust_at_start: str = "network"
     foreign_model: bool = False
 
@@ -342,6 +343,9 @@ class LearnedConfig:
                "must be 'network' (a mission starts with it on probation) or 'search' (it must earn trust)")
         _check(math.isfinite(self.audit_step) and 0.0 <= self.audit_step < 1.0, "learned.audit_step",
                self.audit_step, "must be in [0, 1) (0: no audit)")
+        _check(isinstance(self.stall_updates, int) and 0 <= self.stall_updates <= 1000,
+               "learned.stall_updates", self.stall_updates,
+               "must be an integer in [0, 1000] (0: never search after a stall)")
 
 
 @dataclass(frozen=True)

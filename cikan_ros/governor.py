@@ -30,6 +30,7 @@ PATH_KEEP = "keep"              # keep rule: tau_prev kept without prediction (n
 PATH_PROBE = "probe"            # keep rule: budgeted bisection over [tau_prev, 0] on schedule
 PATH_SEARCH = "search"          # keep rule, network not trusted: the conventional TSG's pi*
 PATH_AUDIT = "audit"            # keep rule: the scheduled audit found the answer lagging and took the audited shift
+PATH_STALL = "stall"            # keep rule: tau held for learned.stall_updates updates; the conventional TSG's pi*
 
 
 Clock = tuple[float, float]

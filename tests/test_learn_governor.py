@@ -11,7 +11,7 @@ import torch
 
 from cikan_ros.errors import StateError
 from cikan_ros.governor import (PATH_AUDIT, PATH_BISECT, PATH_KEEP, PATH_NN, PATH_NN_BISECT, PATH_PROBE,
-                                PATH_SEARCH, PATH_VERIFY_ZERO, PATH_ZERO, update_index)
+                                PATH_SEARCH, PATH_STALL, PATH_VERIFY_ZERO, PATH_ZERO, update_index)
 from cikan_ros.learn.arch import Arch, NumpyNet
 from cikan_ros.learn.features import features, features_one
 from cikan_ros.learn.governor import LearnedGovernor, nn_accept_rate
@@ -269,7 +269,8 @@ def test_adversarial_networks_dock_under_the_keep_rule(predictor, case: str) -> 
         _assert_safe_success(res)
         assert np.all(np.diff(res.tau) >= 0.0)
         paths = {r.path for r in res.updates if r.active}
-        trust_paths = {PATH_AUDIT, PATH_SEARCH}   # the trust's audit, and searching once it is lost
+        # the trust's audit, the stall rule's search, and searching once trust is lost
+        trust_paths = {PATH_AUDIT, PATH_SEARCH, PATH_STALL}
         if case == "always-keep":
             # no progress proposed: the audit finds the lag, and the rule searches from then on
             assert paths <= {PATH_KEEP, PATH_PROBE, PATH_VERIFY_ZERO} | trust_paths and PATH_SEARCH in paths

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from cikan_ros.config import load_config
-from cikan_ros.governor import PATH_AUDIT, PATH_SEARCH, ConventionalGovernor
+from cikan_ros.governor import PATH_AUDIT, PATH_KEEP, PATH_SEARCH, PATH_STALL, ConventionalGovernor
 from cikan_ros.learn.arch import Arch, NumpyNet
 from cikan_ros.learn.features import features
 from cikan_ros.learn.governor import LearnedGovernor, Trust
@@ -117,7 +117,7 @@ def test_a_network_that_does_not_fit_costs_little(predictor: Predictor, tau_abs:
         m = res.metrics()
         assert m["violations"] == 0 and m["success"], m
         for u in res.updates:
-            if u.path == PATH_SEARCH:
+            if u.path in (PATH_SEARCH, PATH_STALL):
                 assert u.tau_s == predictor.optimal_shift(*_state(res, u, predictor), u.tau_prev)[0]
             if u.path == PATH_AUDIT:
                 assert predictor.verify(*_state(res, u, predictor), u.tau_s)
@@ -134,3 +134,27 @@ def _state(res, u, predictor: Predictor) -> tuple[np.ndarray, float]:
 
     step = round(u.k * predictor.config.tsg.update_period_s / predictor.config.control.period_s)
     return through_si(res.x_d[step]), float(res.t[step])
+
+
+@pytest.mark.parametrize("stall_updates", [0, 3])
+def test_the_stall_rule_searches_after_held_updates(predictor: Predictor, stall_updates: int) -> None:
+    """A network that never proposes progress (constant 1e6 s), with no audit and no probe: the
+    keep rule alone holds tau_0 for good. With learned.stall_updates = 3, the 4th active update
+    searches like the conventional TSG (its answer is pi* at that state, here progress: a miss,
+    which takes the probation credit, so the rule searches from then on)."""
+    cfg = predictor.config.replace(**{"learned.audit_step": 0.0, "learned.probe_budget": 0,
+                                      "learned.stall_updates": stall_updates,
+                                      "mission.duration_s": 900.0})
+    pred = Predictor.from_config(cfg)
+    gov = _constant(pred, 1e6)
+    res = run_mission(gov, sample_start(pred, 1), 1)
+    active = [u for u in res.updates if u.active]
+    assert len(active) >= 10
+    if stall_updates == 0:
+        assert {u.path for u in active} == {PATH_KEEP}
+        assert all(u.tau_s == res.updates[0].tau_s for u in active)
+        return
+    assert [u.path for u in active[:4]] == [PATH_KEEP] * 3 + [PATH_STALL]
+    stall = active[3]
+    assert stall.tau_s == pred.optimal_shift(*_state(res, stall, pred), stall.tau_prev)[0] != stall.tau_prev
+    assert {u.path for u in active[4:]} <= {PATH_SEARCH}

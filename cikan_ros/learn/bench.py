@@ -27,7 +27,7 @@ conventional TSG and in the same run, under the default update rule (``learned.a
   (CPU time of the active updates of the governor's own missions from the benchmark's starts),
   ``<m>_mission_speedup_mean`` against the conventional TSG's missions from the same starts,
   flown in turn with them, and ``<m>_search_rate``: the share of those updates answered by
-  searching (path "search");
+  searching (paths "search" and "stall");
 - ``dataset_labels_per_s``: label generation rate of ``cikan dataset`` in this process (one core,
   kernels warm), over a fixed set of missions.
 """
@@ -176,8 +176,8 @@ def mission_figures(conventional: Any, governors: list[Any], states: BenchStates
     """Active-update CPU time of whole missions from the benchmark's starts (nominal start, then
     seeds 1, 2, ...; truth seed = start seed), each learned governor flown in turn with the
     conventional TSG, start by start: what the keep rule's trust costs as flown."""
-    from ..governor import PATH_SEARCH
     from ..mission import run_mission
+    from .governor import SEARCHED
 
     cpu: dict[str, list[float]] = {g.name: [] for g in [conventional] + governors}
     searched: dict[str, int] = {g.name: 0 for g in governors}
@@ -189,7 +189,7 @@ def mission_figures(conventional: Any, governors: list[Any], states: BenchStates
             active = [u for u in res.updates if u.active]
             cpu[gov.name] += [u.cpu_s for u in active]
             if gov is not conventional:
-                searched[gov.name] += sum(u.path == PATH_SEARCH for u in active)
+                searched[gov.name] += sum(u.path in SEARCHED for u in active)
     conv = float(np.mean(cpu[conventional.name]))
     out: dict[str, Any] = {"mission_conventional_update_ms_mean": conv * 1e3}
     for gov in governors:

@@ -21,6 +21,10 @@ than ρ |τ_prev| (ρ = learned.min_progress)::
       not scheduled               -> τ_prev, no prediction                          [path "keep"]
       scheduled                   -> bisect_{B_p}(lo = τ_prev, hi = 0)              [path "probe"]
 
+The trust (:class:`Trust`) and the stall rule wrap this: an untrusted network's updates are the
+conventional TSG's (path "search"), and after learned.stall_updates trusted updates in a row
+that held τ_prev the next one is too (path "stall"; docs/learned_update_rule.md).
+
 The ladder exists because a failed Verify is cheap (it stops at the first violation) and the
 networks' proposals are biased low: trying an optimistic candidate first keeps τ near π*, and
 with it the time to τ = 0 and the ΔV, at less cost than a search (docs/learned_update_rule.md).
@@ -51,7 +55,7 @@ from numpy.typing import ArrayLike
 
 from ..governor import (PATH_AUDIT, PATH_BISECT, PATH_INITIAL, PATH_KEEP, PATH_NN, PATH_NN_BISECT, PATH_PROBE,
                         PATH_SEARCH,
-                        PATH_VERIFY_ZERO, PATH_ZERO, UpdateRecord, initial_update, make_record,
+                        PATH_STALL, PATH_VERIFY_ZERO, PATH_ZERO, UpdateRecord, initial_update, make_record,
                         start_clock, update_index)
 from ..tsg import ChiefAnchor, ChiefCache, Predictor, quantise_shift
 from .arch import FAMILIES, NumpyNet, log_shift_kernel
@@ -61,6 +65,8 @@ from .modelfile import CARD, LoadedModel, load_model, model_scenario, scenario_m
 
 #: ln|τ| above this (|τ| > ~1.4e17 s) is treated like a non-finite output: out of range.
 MAX_LOG_SHIFT = 40.0
+#: Paths answered by the conventional TSG's search (its own zero test included).
+SEARCHED = (PATH_SEARCH, PATH_STALL)
 
 
 class Trust:
@@ -83,6 +89,8 @@ class Trust:
         self.cap, self.need_hits, self.start = cap, hits, start
         self.credit = 0
         self.hits = 0
+        #: Trusted updates in a row that answered tau_prev (the stall rule's count).
+        self.held = 0
         self.reset()
 
     @property
@@ -98,10 +106,11 @@ class Trust:
         """A mission's start."""
         self.credit = min(1, self.cap) if self.start == "network" else 0
         self.hits = 0
+        self.held = 0
 
     def grant(self) -> None:
         """Full trust now (the benchmark times the network's path this way)."""
-        self.credit, self.hits = self.cap, 0
+        self.credit, self.hits, self.held = self.cap, 0, 0
 
     def judge(self, miss: bool) -> None:
         """One trusted update's outcome."""
@@ -172,10 +181,12 @@ class LearnedGovernor:
             tau, path, calls, cache = self._paper(pred, x_d, t, tau_prev, tau_c)
         else:
             tau, path, calls, cache = self._keep(pred, x_d, t, tau_prev, tau_c, k)
-        if path != PATH_SEARCH and tau != 0.0 and abs(tau) <= pred.config.tsg.zero_snap_s:
+        if path not in SEARCHED and tau != 0.0 and abs(tau) <= pred.config.tsg.zero_snap_s:
             calls += 1
             if pred.verify(x_d, t, 0.0, cache or pred.cache(t)):
                 tau, path = 0.0, PATH_VERIFY_ZERO
+        trust = self.trust
+        trust.held = trust.held + 1 if tau == tau_prev and path not in SEARCHED else 0
         return make_record(started, tau, path, calls, k, tau_prev)
 
     @staticmethod
@@ -204,6 +215,16 @@ class LearnedGovernor:
             if judged is not None:
                 trust.shadow(judged)
             return tau, PATH_SEARCH, calls, None
+        if 0 < lc.stall_updates <= trust.held:
+            # The stall rule: tau_prev held for stall_updates trusted updates in a row. Either
+            # pi* = tau_prev (a stall: every network looks alike) or the feasible progress per
+            # update is below every step the rule tries (measured in GEO's approach-speed-bound
+            # tail: ~0.4 % of |tau| per update, against the audit's 10 %), which would hold tau
+            # for good. So search like the conventional TSG; progress found is a miss.
+            tau, calls = pred.optimal_shift(x_d, t, tau_prev)
+            if tau != tau_prev:
+                trust.judge(True)
+            return tau, PATH_STALL, calls, None
         scheduled = k % lc.probe_every == 0
         if scheduled and pred.config.tsg.robust and abs(tau_prev) <= pred.config.tsg.zero_snap_s:
             # Robust Verify's last approach: the feasible shifts above tau_prev form a thin
@@ -296,7 +317,7 @@ def nn_accept_rate(updates: Iterable[UpdateRecord]) -> float | None:
 
     A proposal that passed Verify and was then snapped to 0 by the zero test counts as not
     accepted (its path is "verify-zero"); this happens at most once per mission."""
-    consulted = [r.path for r in updates if r.path not in (PATH_ZERO, PATH_INITIAL, PATH_SEARCH)]
+    consulted = [r.path for r in updates if r.path not in (PATH_ZERO, PATH_INITIAL) + SEARCHED]
     return consulted.count(PATH_NN) / len(consulted) if consulted else None
 
 
