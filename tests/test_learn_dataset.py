@@ -9,8 +9,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from cikan_ros.config import load_config, scenario_overrides
 from cikan_ros.learn.dataset import (COLUMNS, XD_COLS, DatasetSpec, generate, read_parquet,
-                                     write_parquet)
+                                     scenario_sigma_km, write_parquet)
 
 SPEC = DatasetSpec(seed=11, val_fraction=0.3, test_fraction=0.3)
 N = 240
@@ -76,6 +77,8 @@ def test_cli_writes_the_same_labels(cfg, local, tmp_path, capsys) -> None:
                  "--json"]) == 0
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert summary["labels"] == N and summary["labels_per_s"] > 0
+    # the paper's spread, 5-15 km, from 0.5-1.5 x its Monte Carlo's 10 km
+    assert (summary["sigma_min_km"], summary["sigma_max_km"]) == (5.0, 15.0)
     back, _ = read_parquet(out)
     pd.testing.assert_frame_equal(back, local[0])
 
@@ -104,3 +107,11 @@ def test_on_policy_labels_are_pi_star_where_the_learned_governor_flew(cfg, predi
         assert star == r["tau_star_s"]
         differs += s.tau != star  # the learned answer is not always pi*: labels are re-solved
     assert differs > 0
+
+
+@pytest.mark.parametrize("scenario,sigma_mc", [("paper", 10.0), ("leo", 4.43752), ("geo", 2.0)])
+def test_start_spread_follows_the_scenario(scenario: str, sigma_mc: float) -> None:
+    """A dataset's starts spread as 0.5-1.5 x the scenario's Monte Carlo sigma (config/scenarios)."""
+    cfg = load_config(None, **scenario_overrides(scenario))
+    assert cfg.mission.mc_sigma_km == sigma_mc
+    assert scenario_sigma_km(cfg) == (0.5 * sigma_mc, 1.5 * sigma_mc)

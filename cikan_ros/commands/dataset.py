@@ -21,8 +21,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--dask", metavar="ADDRESS", default=None,
                    help="run on the Dask cluster at this scheduler address (e.g. tcp://host:8786)")
     p.add_argument("--seed", type=seed_arg, default=0, help="dataset seed (the labels depend on it only)")
-    p.add_argument("--sigma-min", type=float, default=5.0, help="smallest start spread sigma [km]")
-    p.add_argument("--sigma-max", type=float, default=15.0, help="largest start spread sigma [km]")
+    p.add_argument("--sigma-min", type=float, default=None,
+                   help="smallest start spread sigma [km] (default 0.5 x mission.mc_sigma_km: 5 km "
+                        "in the paper's scenario)")
+    p.add_argument("--sigma-max", type=float, default=None,
+                   help="largest start spread sigma [km] (default 1.5 x mission.mc_sigma_km: 15 km)")
     p.add_argument("--val-fraction", type=float, default=0.05, help="fraction of missions for val")
     p.add_argument("--test-fraction", type=float, default=0.05, help="fraction of missions for test")
     p.add_argument("--governor", default="conventional", metavar="NAME",
@@ -36,17 +39,20 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..learn.dataset import DatasetSpec, generate, write_parquet
+    from ..learn.dataset import DatasetSpec, generate, scenario_sigma_km, write_parquet
     from ..learn.errors import DatasetError
 
     if args.chunk < 1:
         raise DatasetError("--chunk must be >= 1")
-    spec = DatasetSpec(seed=args.seed, sigma_min_km=args.sigma_min, sigma_max_km=args.sigma_max,
+    cfg = config_from_args(args)
+    lo, hi = scenario_sigma_km(cfg)
+    spec = DatasetSpec(seed=args.seed, sigma_min_km=lo if args.sigma_min is None else args.sigma_min,
+                       sigma_max_km=hi if args.sigma_max is None else args.sigma_max,
                        val_fraction=args.val_fraction, test_fraction=args.test_fraction)
     import os
 
     workers = args.workers if args.workers is not None else (os.cpu_count() or 1)
-    df, meta = generate(config_from_args(args), args.labels, spec, workers=workers,
+    df, meta = generate(cfg, args.labels, spec, workers=workers,
                         dask_address=args.dask, chunk=args.chunk, progress=not args.quiet,
                         governor=args.governor)
     path = write_parquet(df, meta, args.out)
