@@ -8,6 +8,8 @@ import math
 import numpy as np
 import pytest
 import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from cikan_ros.errors import StateError
 from cikan_ros.governor import (PATH_AUDIT, PATH_BISECT, PATH_KEEP, PATH_NN, PATH_NN_BISECT, PATH_PROBE,
@@ -278,3 +280,29 @@ def test_adversarial_networks_dock_under_the_keep_rule(predictor, case: str) -> 
             # every proposal fails; the audit then finds progress it missed, and the rule searches
             assert PATH_SEARCH in paths
             assert paths <= {PATH_NN_BISECT, PATH_KEEP, PATH_NN, PATH_VERIFY_ZERO} | trust_paths
+
+
+def _ladder_reference(tau_c: float, tau_prev: float, side: int, ladder, min_step: float,
+                      min_progress: float) -> list[float]:
+    """The keep rule's candidates as docs/learned_update_rule.md states them, in plain Python."""
+    if math.isnan(tau_c) or side * tau_c > side * tau_prev * (1.0 - min_progress):
+        return []
+    out: list[float] = []
+    for s in ladder:
+        c = round(tau_c * (1.0 - s) * 1e9) / 1e9
+        if 0.0 <= side * c <= side * tau_prev - min_step and (not out or side * c > side * out[-1]):
+            out.append(c)
+    return out
+
+
+@settings(max_examples=200, deadline=None)
+@given(tau_prev=st.floats(1e-4, 600.0), ratio=st.floats(-0.5, 1.5), side=st.sampled_from([-1, 1]),
+       min_step=st.sampled_from([0.0, 1e-5, 1e-3]), min_progress=st.sampled_from([0.0, 0.02]),
+       ladder=st.sampled_from([(0.08, 0.03, 0.0, -0.05), (0.0,), (0.5, 0.2, -0.9)]))
+def test_ladder_kernel_is_the_stated_rule(tau_prev, ratio, side, min_step, min_progress, ladder) -> None:
+    from cikan_ros.learn.governor import ladder_kernel
+
+    tau_c, tau_p = side * ratio * tau_prev, side * tau_prev
+    out = np.empty(len(ladder), dtype=np.int64)
+    n = ladder_kernel(tau_c, tau_p, side, np.array(ladder), min_step, min_progress, out)
+    assert [v / 1e9 for v in out[:n]] == _ladder_reference(tau_c, tau_p, side, ladder, min_step, min_progress)

@@ -81,6 +81,10 @@ def test_shadow_judgement_golden(predictor: Predictor) -> None:
       = -10, 0.9 * 10 = 9 > 7: a miss.
     """
     gov = _constant(predictor, 5.0)
+    assert gov.candidates(-5.0, -10.0) == [-4.6, -4.85, -5.0, -5.25]
+    assert gov.candidates(-5.0, -5.2) == [-4.6, -4.85, -5.0]      # |c| <= |tau_prev| - 1 ms only
+    assert gov.candidates(-5.0, -5.0) == [-4.6, -4.85]
+    assert gov.candidates(math.nan, -10.0) == [] and gov.candidates(-11.0, -10.0) == []
     assert gov.would_pay(-5.0, -10.0, -5.0) is True
     assert gov.would_pay(-5.0, -10.0, -2.0) is False
     assert gov.would_pay(-5.0, -10.0, -9.5) is None

@@ -50,14 +50,16 @@ import math
 from pathlib import Path
 from typing import Iterable
 
+import numba as nb
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from ..governor import (PATH_AUDIT, PATH_BISECT, PATH_INITIAL, PATH_KEEP, PATH_NN, PATH_NN_BISECT, PATH_PROBE,
                         PATH_SEARCH,
                         PATH_STALL, PATH_VERIFY_ZERO, PATH_ZERO, UpdateRecord, initial_update, make_record,
                         start_clock, update_index)
 from ..tsg import ChiefAnchor, ChiefCache, Predictor, quantise_shift
+from ..units import ns_to_seconds, seconds_to_ns as to_ns
 from .arch import FAMILIES, NumpyNet, log_shift_kernel
 from .errors import ModelFileError
 from .features import FEATURE_CODES
@@ -67,6 +69,26 @@ from .modelfile import CARD, LoadedModel, load_model, model_scenario, scenario_m
 MAX_LOG_SHIFT = 40.0
 #: Paths answered by the conventional TSG's search (its own zero test included).
 SEARCHED = (PATH_SEARCH, PATH_STALL)
+
+
+@nb.njit(cache=True)
+def ladder_kernel(tau_c: float, tau_prev: float, side: int, ladder: NDArray, min_step_s: float,
+                  min_progress: float, out_ns: NDArray) -> int:
+    """The keep rule's candidates c_i = τ_c (1 - s_i) on the nanosecond grid (as
+    :func:`quantise_shift`: half-even rounding) into ``out_ns`` (int64, >= len(ladder)), in ladder
+    order, those with 0 <= |c_i| <= |τ_prev| - δ, without repeats; returns how many. None when
+    τ_c is NaN or moves τ by less than ρ |τ_prev|. In magnitudes m = side · τ (s)."""
+    m_prev = side * tau_prev
+    if tau_c != tau_c or side * tau_c > m_prev * (1.0 - min_progress):
+        return 0
+    n = 0
+    for s in ladder:
+        ns = np.int64(np.rint(tau_c * (1.0 - s) * 1e9))
+        m = side * (ns / 1e9)
+        if 0.0 <= m <= m_prev - min_step_s and (n == 0 or m > side * (out_ns[n - 1] / 1e9)):
+            out_ns[n] = ns
+            n += 1
+    return n
 
 
 class Trust:
@@ -140,6 +162,8 @@ class LearnedGovernor:
         self.model_dir: Path | None = None
         self.weights_sha256: str | None = None
         self._code = FEATURE_CODES[net.arch.features]
+        self._ladder = np.array(lc.ladder, dtype=np.float64)
+        self._cands_ns = np.empty(len(lc.ladder), dtype=np.int64)
 
     @classmethod
     def from_model(cls, model: LoadedModel, predictor: Predictor, name: str | None = None
@@ -233,11 +257,13 @@ class LearnedGovernor:
             # calls); a safe answer either way (verified, or tau_prev).
             tau, calls = pred.optimal_shift(x_d, t, tau_prev)
             return tau, PATH_PROBE, calls, None
-        candidates = self.candidates(tau_c, tau_prev)
-        if candidates:
+        n = ladder_kernel(tau_c, tau_prev, pred.side, self._ladder, lc.min_step_s, lc.min_progress,
+                          self._cands_ns)
+        if n:
             cache = pred.cache(t)
             budget = lc.probe_budget if scheduled else lc.fallback_budget
-            tau, index, calls = pred.first_feasible(x_d, t, candidates, tau_prev, budget, cache)
+            tau, index, calls = pred.first_feasible_ns(x_d, t, self._cands_ns[:n], to_ns(tau_prev), budget,
+                                                       cache)
             path = PATH_NN if index >= 0 else PATH_NN_BISECT if budget > 0 else PATH_KEEP
             stuck = index < 0 and tau == tau_prev   # every proposal failed and nothing was found
             miss: bool | None = None
@@ -297,17 +323,10 @@ class LearnedGovernor:
         or proposes less progress than ρ |τ_prev| (|τ_c| > |τ_prev| (1 - ρ), ρ =
         learned.min_progress). In magnitudes m = side · τ, so one rule serves both sides."""
         lc = self.predictor.config.learned
-        side = self.predictor.side
-        out: list[float] = []
-        m_prev = side * tau_prev
-        if math.isnan(tau_c) or side * tau_c > m_prev * (1.0 - lc.min_progress):
-            return out
-        for s in lc.ladder:
-            c = quantise_shift(tau_c * (1.0 - s))
-            m = side * c
-            if 0.0 <= m <= m_prev - lc.min_step_s and (not out or m > side * out[-1]):
-                out.append(c)
-        return out
+        out = np.empty(len(lc.ladder), dtype=np.int64)
+        n = ladder_kernel(float(tau_c), float(tau_prev), self.predictor.side, self._ladder, lc.min_step_s,
+                          lc.min_progress, out)
+        return [ns_to_seconds(int(v)) for v in out[:n]]
 
 
 def nn_accept_rate(updates: Iterable[UpdateRecord]) -> float | None:
