@@ -151,9 +151,10 @@ scenario-index: $(STAMP)
 		--notes docs/results/scenarios_notes.md
 
 # Networks that do not fit (docs/learned_update_rule.md): a random-weight CIKAN (the shipped
-# architecture, untrained) and a one-epoch ReLU (8 wide, 2 layers) on 3,000 labels, flown under
-# the keep rule on the Table 2 starts beside the conventional TSG and the shipped CIKAN and ReLU;
-# the table goes to docs/results/bad_networks/.
+# architecture, untrained), a one-epoch ReLU (8 wide, 2 layers) on 3,000 labels and another
+# scenario's model (the LEO CIKAN, flown with learned.foreign_model=true), under the keep rule on
+# the Table 2 starts beside the conventional TSG and the shipped CIKAN and ReLU; the table goes
+# to docs/results/bad_networks/.
 BAD := runs/bad-networks
 bad-networks: $(STAMP)
 	$(BIN)/cikan dataset --labels 3000 --out $(BAD)/labels3k.parquet --seed 7 --workers 2
@@ -161,8 +162,8 @@ bad-networks: $(STAMP)
 		--out $(BAD)/random-cikan --checkpoint-dir $(BAD)/checkpoints/random-cikan --quiet
 	$(BIN)/cikan train --model relu --width 8 --layers 2 --epochs 1 --data $(BAD)/labels3k.parquet \
 		--out $(BAD)/barely-relu --checkpoint-dir $(BAD)/checkpoints/barely-relu --quiet
-	$(BIN)/cikan montecarlo --runs $(ROBUST_RUNS) --workers 2 --out $(BAD)/mc \
-		--governor conventional,cikan,relu,$(BAD)/random-cikan,$(BAD)/barely-relu
+	$(BIN)/cikan montecarlo --runs $(ROBUST_RUNS) --workers 2 --out $(BAD)/mc --set learned.foreign_model=true \
+		--governor conventional,cikan,relu,$(BAD)/random-cikan,$(BAD)/barely-relu,models/leo/cikan
 	$(BIN)/cikan report $(BAD)/mc --tables-only --out docs/results/bad_networks \
 		--title "Networks that do not fit, under the keep rule: Table 2 starts, $(ROBUST_RUNS) runs"
 

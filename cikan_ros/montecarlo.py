@@ -20,7 +20,7 @@ import numpy as np
 from .config import Config, config_from_flat
 from .errors import CikanError, NoFeasibleShiftError
 from .robust import UnstableLoopError
-from .governor import Governor, make_governor, warm_up
+from .governor import GOVERNOR_NAMES, Governor, make_governor, warm_up
 from .mission import MissionResult, nominal_start, run_mission, sample_start
 from .parallel import ordered_map
 
@@ -38,8 +38,14 @@ class RunTask:
 
 
 def governor_label(name: str) -> str:
-    """Directory name of a governor: its family name, or the stem of a model path."""
-    return Path(name).name.removesuffix(".safetensors") if ("/" in name or name.endswith(".safetensors")) else name
+    """Directory name of a governor: its name, or the stem of a model path; a stem that names a
+    governor (models/leo/cikan) takes its parent's name in front (leo-cikan), so it does not
+    share the directory of the shipped model flown beside it."""
+    if not ("/" in name or name.endswith(".safetensors")):
+        return name
+    p = Path(name)
+    stem = p.name.removesuffix(".safetensors")
+    return f"{p.parent.name}-{stem}" if stem in GOVERNOR_NAMES and p.parent.name else stem
 
 
 def run_paths(out_dir: str | Path, governor: str, seed: int) -> tuple[Path, Path]:

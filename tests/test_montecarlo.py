@@ -74,3 +74,17 @@ def test_summary_figures():
     assert s["update_ms_mean"] == pytest.approx((10 * 1.0 + 30 * 2.0) / 40)  # over all updates
     assert s["active_update_ms_mean"] == pytest.approx((2 * 4.0 + 6 * 8.0) / 8)
     assert s["t_tau_zero_s_max"] == 1800.0
+
+
+def test_governor_labels_are_distinct_directories():
+    """A model path's stem names its runs' directory; a stem that is a governor's name takes its
+    parent's in front, so another scenario's model flown beside the shipped one keeps its own."""
+    from cikan_ros.montecarlo import governor_label
+
+    assert governor_label("cikan") == "cikan"
+    assert governor_label("cikan@paper") == "cikan@paper"
+    assert governor_label("runs/bad/random-cikan") == "random-cikan"
+    assert governor_label("models/leo/cikan") == "leo-cikan"
+    assert governor_label("models/leo/cikan-ahead") == "cikan-ahead"
+    assert governor_label("m/relu.safetensors") == "m-relu"
+    assert governor_label("relu.safetensors") == "relu"
