@@ -157,6 +157,23 @@ def test_conventional_docks_from_ahead(scenario: str) -> None:
     assert res.tau[-1] == 0.0
 
 
+def test_geo_speed_limit_has_no_jump_the_governor_can_ride() -> None:
+    """GEO Monte Carlo start 83, behind, conventional TSG: with h3 switched on only inside
+    gamma1 = 1 km, the limit jumped there (none -> 1.01 m/s), the prediction's sample fell just
+    outside and the plant's just inside, at 1.03 m/s (h3 = +1.9e-5 km/s). With the shipped
+    gamma1 (the whole approach) the run docks with no violation; the old value still shows it."""
+    for gamma1, clean in ((None, True), (1.0, False)):
+        over = {**scenario_overrides("geo")}
+        if gamma1 is not None:
+            over["constraints.gamma1_km"] = gamma1
+        pred = Predictor.from_config(load_config(**over))
+        m = run_mission(ConventionalGovernor(pred), sample_start(pred, 83), 83).metrics()
+        if clean:
+            assert m["violations"] == 0 and m["success"], m
+        else:
+            assert m["violations_h3"] >= 1 and m["max_h3"] > 1e-6, m
+
+
 def test_models_are_per_scenario_and_side(tmp_path: Path, capsys) -> None:
     """A family resolves to <models_dir>/<family>[-ahead]; a model whose card names another
     scenario or side is refused unless learned.foreign_model, and then the mission says so."""
