@@ -148,7 +148,7 @@ scenario-results: $(STAMP)
 # The index of every scenario campaign flown so far (docs/results/scenarios/README.md).
 scenario-index: $(STAMP)
 	$(BIN)/cikan report runs/scenario-results --scenarios --out docs/results/scenarios \
-		--notes docs/results/scenarios_notes.md
+		--bench docs/results/scenarios/bench --notes docs/results/scenarios_notes.md
 
 # Networks that do not fit (docs/learned_update_rule.md): a random-weight CIKAN (the shipped
 # architecture, untrained), a one-epoch ReLU (8 wide, 2 layers) on 3,000 labels and another

@@ -3,12 +3,14 @@ thresholds: the figures are only checked to exist and be finite)."""
 
 from __future__ import annotations
 
+import json
 import math
 
 import pytest
 
 from cikan_ros.bench import conventional_section, nominal_section
 from cikan_ros.config import load_config, truth_overrides
+from cikan_ros.errors import CikanError
 from cikan_ros.timing import collect_states, is_nominal, nominal_config
 
 #: The conventional section's keys before the truth model: a nominal run reports exactly these,
@@ -69,16 +71,28 @@ def test_realistic_robust_bench_reports_ratio_and_anchoring(realistic):
     assert out["nominal_n_missions"] == out["n_missions"] == 1
 
 
-def test_realistic_robust_learned_section(realistic):
+def test_realistic_robust_learned_section(realistic, tmp_path):
     pytest.importorskip("safetensors")
+    from cikan_ros.analysis.table import bench_index
     from cikan_ros.governor import LEARNED_NAMES
     from cikan_ros.learn.bench import learned_section
 
     cfg, states = realistic
-    conventional_section(cfg, states, 1)
-    out = learned_section(cfg, states, 1)
+    out = conventional_section(cfg, states, 1)
+    out.update(learned_section(cfg, states, 1))
     assert "learned_models_missing" not in out
     for name in LEARNED_NAMES:
         for k in ("speedup_mean", "speedup_worst", "verify_calls_mean", "nn_accept_rate",
-                  "rmse_tau_s"):
+                  "rmse_tau_s", "mission_speedup_mean", "search_rate"):
             assert math.isfinite(out[f"{name}_{k}"]), (name, k)
+    # the scenario index's speed table: one row per model, the figures of the bench file
+    (tmp_path / "paper-behind.json").write_text(json.dumps(out))
+    rows = bench_index(tmp_path).splitlines()[2:]
+    assert [r.split(" | ")[2] for r in rows] == list(LEARNED_NAMES)
+    cikan = rows[0].strip("| ").split(" | ")
+    assert cikan[:2] == ["paper", "behind"]
+    assert cikan[4] == f"{out['cikan_speedup_mean']:.2f} / {out['cikan_speedup_worst']:.2f}"
+    assert cikan[7] == f"{out['cikan_search_rate']:.1%}"
+    (tmp_path / "leo-ahead.json").write_text("{not json")
+    with pytest.raises(CikanError, match="leo-ahead.json"):
+        bench_index(tmp_path)

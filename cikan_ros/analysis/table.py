@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from ..config import config_from_flat
+from ..errors import CikanError
 from ..governor import PATH_NN, split_rule
 from ..mission import errors_against_optimal, rmse, update_states
 from ..montecarlo import load_run_arrays, summarise
@@ -304,4 +305,36 @@ def scenarios_index(root: str | Path) -> str:
                 f"| {_fmt(r['delta_v_kmps_mean'], '.4f')} | {vs} | {tvs} "
                 f"| {_fmt(r['active_speedup_mean'], '.2f')} / {_fmt(r['active_speedup_worst'], '.2f')} "
                 f"| {_fmt(r['nn_accept_rate'], '.3f')} |")
+    return "\n".join(lines) + "\n"
+
+
+def bench_index(root: str | Path) -> str:
+    """Markdown: the speed figures of each ``cikan bench --json`` output ``<scenario>-<side>.json``
+    under ``root`` (``make scenario-bench``), one row per learned model: the per-update speed-up
+    against the conventional TSG on the same states in the same run (mean and worst; the network
+    trusted), Verify calls per update, and whole missions as flown (trust and stall rule
+    included): their active-update speed-up and the share of updates answered by searching."""
+    from ..governor import LEARNED_NAMES
+
+    lines = ["| scenario | side | model | conventional update ms | update speed-up mean / worst "
+             "| Verify calls mean (conventional) | mission speed-up as flown | searching |",
+             "|" + "---|" * 8]
+    files = sorted(Path(root).glob("*.json"))
+    if not files:
+        raise CikanError(f"no cikan bench JSON file in {root}")
+    for f in files:
+        scenario, _, side = f.stem.rpartition("-")
+        try:
+            b = json.loads(f.read_text())
+        except (OSError, ValueError) as exc:
+            raise CikanError(f"cannot read bench file {f}: {exc}") from None
+        for m in LEARNED_NAMES:
+            if f"{m}_speedup_mean" not in b:
+                continue
+            lines.append(
+                f"| {scenario} | {side} | {m} | {_fmt(b.get('learned_conventional_update_ms_mean'), '.3f')} "
+                f"| {_fmt(b[f'{m}_speedup_mean'], '.2f')} / {_fmt(b.get(f'{m}_speedup_worst'), '.2f')} "
+                f"| {_fmt(b.get(f'{m}_verify_calls_mean'), '.2f')} ({_fmt(b.get('conventional_verify_calls_mean'), '.1f')}) "
+                f"| {_fmt(b.get(f'{m}_mission_speedup_mean'), '.2f')} "
+                f"| {_fmt(b.get(f'{m}_search_rate'), '.1%')} |")
     return "\n".join(lines) + "\n"
