@@ -314,7 +314,7 @@ class LearnedConfig:
     trust_credit: int = 3
     trust_hits: int = 3
     audit_step: float = 0.1
-    stall_updates: int = 5
+    stall_updates: int = 10
     trust_at_start: str = "network"
     foreign_model: bool = False
 

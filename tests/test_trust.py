@@ -48,6 +48,28 @@ def test_credit_arithmetic() -> None:
     assert Trust(cap=0, hits=2, start="network").searching   # credit 0: never trusted
 
 
+def test_stall_rule_arithmetic() -> None:
+    """Holds count while the rule keeps tau_prev; N = 2 holds make a search due; a search that
+    finds nothing doubles the wait (up to 8N = 16); a move, or a mission's start, resets it."""
+    t = Trust(cap=3, hits=2, stall=2)
+    t.after_update(moved=False, searched=False)
+    assert not t.stall_due()
+    t.after_update(moved=False, searched=False)
+    assert t.stall_due()
+    waits = []
+    for _ in range(5):
+        t.stall_found_nothing()
+        t.after_update(moved=False, searched=True)       # the search itself: held back to 0
+        waits.append(t.stall_wait)
+    assert waits == [4, 8, 16, 16, 16] and t.held == 0
+    t.after_update(moved=True, searched=False)
+    assert (t.stall_wait, t.held) == (2, 0)
+    t.stall_found_nothing()
+    t.reset()
+    assert t.stall_wait == 2
+    assert not Trust(cap=3, hits=2, stall=0).stall_due()   # 0: the rule is off
+
+
 @pytest.fixture(scope="module")
 def predictor() -> Predictor:
     return Predictor.from_config(load_config())

@@ -67,6 +67,8 @@ from .modelfile import CARD, LoadedModel, load_model, model_scenario, scenario_m
 
 #: ln|τ| above this (|τ| > ~1.4e17 s) is treated like a non-finite output: out of range.
 MAX_LOG_SHIFT = 40.0
+#: The stall rule waits at most this many times learned.stall_updates holds between searches.
+STALL_BACKOFF = 8
 #: Paths answered by the conventional TSG's search (its own zero test included).
 SEARCHED = (PATH_SEARCH, PATH_STALL)
 
@@ -107,13 +109,30 @@ class Trust:
     A mission starts on probation (``start`` "network", c = 1) or searching ("search").
     Deterministic: a function of the mission's updates."""
 
-    def __init__(self, cap: int, hits: int, start: str = "network") -> None:
-        self.cap, self.need_hits, self.start = cap, hits, start
+    def __init__(self, cap: int, hits: int, start: str = "network", stall: int = 0) -> None:
+        self.cap, self.need_hits, self.start, self.stall = cap, hits, start, stall
         self.credit = 0
         self.hits = 0
-        #: Trusted updates in a row that answered tau_prev (the stall rule's count).
+        #: Trusted updates in a row that answered tau_prev (the stall rule's count), and how
+        #: many of them the rule waits for before it searches (``stall``, doubled after each
+        #: search that found no progress, up to STALL_BACKOFF x ``stall``).
         self.held = 0
+        self.stall_wait = stall
         self.reset()
+
+    def stall_due(self) -> bool:
+        """The stall rule searches this update (0 < stall_wait <= held)."""
+        return 0 < self.stall_wait <= self.held
+
+    def after_update(self, moved: bool, searched: bool) -> None:
+        """Count a hold (a trusted update that kept tau_prev); a move resets the stall rule."""
+        self.held = self.held + 1 if not (moved or searched) else 0
+        if moved:
+            self.stall_wait = self.stall
+
+    def stall_found_nothing(self) -> None:
+        """A stall search kept tau_prev: a true stall; wait twice as long before the next."""
+        self.stall_wait = min(2 * self.stall_wait, STALL_BACKOFF * self.stall)
 
     @property
     def searching(self) -> bool:
@@ -129,10 +148,11 @@ class Trust:
         self.credit = min(1, self.cap) if self.start == "network" else 0
         self.hits = 0
         self.held = 0
+        self.stall_wait = self.stall
 
     def grant(self) -> None:
         """Full trust now (the benchmark times the network's path this way)."""
-        self.credit, self.hits, self.held = self.cap, 0, 0
+        self.credit, self.hits, self.held, self.stall_wait = self.cap, 0, 0, self.stall
 
     def judge(self, miss: bool) -> None:
         """One trusted update's outcome."""
@@ -155,7 +175,7 @@ class LearnedGovernor:
         self.name = name
         self._z = np.empty((1, net.arch.n_in))
         lc = predictor.config.learned
-        self.trust = Trust(lc.trust_credit, lc.trust_hits, lc.trust_at_start)
+        self.trust = Trust(lc.trust_credit, lc.trust_hits, lc.trust_at_start, lc.stall_updates)
         #: None, or what a model flown on another scenario or side was trained for.
         self.foreign: str | None = None
         #: The model directory and weights digest flown (None for a network built in memory).
@@ -209,8 +229,7 @@ class LearnedGovernor:
             calls += 1
             if pred.verify(x_d, t, 0.0, cache or pred.cache(t)):
                 tau, path = 0.0, PATH_VERIFY_ZERO
-        trust = self.trust
-        trust.held = trust.held + 1 if tau == tau_prev and path not in SEARCHED else 0
+        self.trust.after_update(tau != tau_prev, path in SEARCHED)
         return make_record(started, tau, path, calls, k, tau_prev)
 
     @staticmethod
@@ -239,14 +258,19 @@ class LearnedGovernor:
             if judged is not None:
                 trust.shadow(judged)
             return tau, PATH_SEARCH, calls, None
-        if 0 < lc.stall_updates <= trust.held:
+        if trust.stall_due():
             # The stall rule: tau_prev held for stall_updates trusted updates in a row. Either
             # pi* = tau_prev (a stall: every network looks alike) or the feasible progress per
             # update is below every step the rule tries (measured in GEO's approach-speed-bound
             # tail: ~0.4 % of |tau| per update, against the audit's 10 %), which would hold tau
-            # for good. So search like the conventional TSG; progress found is a miss.
+            # for good. So search like the conventional TSG. Progress beyond the audit's reach
+            # is a miss (the audit would have found it); less is no evidence, as for the audit.
+            # A search that finds nothing backs off (true stalls are common on the paper's orbit,
+            # where the deputy rides the cone's edge).
             tau, calls = pred.optimal_shift(x_d, t, tau_prev)
-            if tau != tau_prev:
+            if tau == tau_prev:
+                trust.stall_found_nothing()
+            elif pred.side * tau < pred.side * tau_prev * (1.0 - lc.audit_step):
                 trust.judge(True)
             return tau, PATH_STALL, calls, None
         scheduled = k % lc.probe_every == 0
