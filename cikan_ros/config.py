@@ -315,6 +315,7 @@ class LearnedConfig:
     trust_hits: int = 3
     audit_step: float = 0.1
     stall_updates: int = 10
+    stall_judge: str = "progress"
     trust_at_start: str = "network"
     foreign_model: bool = False
 
@@ -346,6 +347,9 @@ class LearnedConfig:
         _check(isinstance(self.stall_updates, int) and 0 <= self.stall_updates <= 1000,
                "learned.stall_updates", self.stall_updates,
                "must be an integer in [0, 1000] (0: never search after a stall)")
+        _check(self.stall_judge in ("progress", "audit"), "learned.stall_judge", self.stall_judge,
+               "must be 'progress' (any progress a stall search finds is a miss) or 'audit' "
+               "(only progress beyond audit_step)")
 
 
 @dataclass(frozen=True)

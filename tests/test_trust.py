@@ -70,6 +70,18 @@ def test_stall_rule_arithmetic() -> None:
     assert not Trust(cap=3, hits=2, stall=0).stall_due()   # 0: the rule is off
 
 
+def test_stall_judgement_golden() -> None:
+    """stall_miss(side, tau_prev, tau, reach): behind, tau_prev = -10 s; a search answering
+    -9.5 s moved 5 %: a miss when any progress counts (reach 0), none within the audit's 10 %;
+    -8.9 s (11 %) is a miss either way; no move is never a miss. Ahead, the same negated."""
+    from cikan_ros.learn.governor import stall_miss
+
+    assert stall_miss(-1, -10.0, -9.5, 0.0) and not stall_miss(-1, -10.0, -9.5, 0.1)
+    assert stall_miss(-1, -10.0, -8.9, 0.0) and stall_miss(-1, -10.0, -8.9, 0.1)
+    assert not stall_miss(-1, -10.0, -10.0, 0.0)
+    assert stall_miss(1, 10.0, 9.5, 0.0) and not stall_miss(1, 10.0, 9.5, 0.1)
+
+
 @pytest.fixture(scope="module")
 def predictor() -> Predictor:
     return Predictor.from_config(load_config())

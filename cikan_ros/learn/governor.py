@@ -73,6 +73,12 @@ STALL_BACKOFF = 8
 SEARCHED = (PATH_SEARCH, PATH_STALL)
 
 
+def stall_miss(side: int, tau_prev: float, tau: float, reach: float) -> bool:
+    """Did a stall search's answer tau move beyond ``reach`` (a fraction of |tau_prev|) from
+    tau_prev? reach 0: any progress. In magnitudes m = side · τ."""
+    return side * tau < side * tau_prev * (1.0 - reach)
+
+
 @nb.njit(cache=True)
 def ladder_kernel(tau_c: float, tau_prev: float, side: int, ladder: NDArray, min_step_s: float,
                   min_progress: float, out_ns: NDArray) -> int:
@@ -270,7 +276,7 @@ class LearnedGovernor:
             tau, calls = pred.optimal_shift(x_d, t, tau_prev)
             if tau == tau_prev:
                 trust.stall_found_nothing()
-            elif pred.side * tau < pred.side * tau_prev * (1.0 - lc.audit_step):
+            elif stall_miss(pred.side, tau_prev, tau, lc.audit_step if lc.stall_judge == "audit" else 0.0):
                 trust.judge(True)
             return tau, PATH_STALL, calls, None
         scheduled = k % lc.probe_every == 0
