@@ -269,8 +269,8 @@ class LearnedGovernor:
             # pi* = tau_prev (a stall: every network looks alike) or the feasible progress per
             # update is below every step the rule tries (measured in GEO's approach-speed-bound
             # tail: ~0.4 % of |tau| per update, against the audit's 10 %), which would hold tau
-            # for good. So search like the conventional TSG. Progress beyond the audit's reach
-            # is a miss (the audit would have found it); less is no evidence, as for the audit.
+            # for good. So search like the conventional TSG. Progress found is a miss (with
+            # stall_judge "audit": only progress beyond the audit's reach, as for the audit).
             # A search that finds nothing backs off (true stalls are common on the paper's orbit,
             # where the deputy rides the cone's edge).
             tau, calls = pred.optimal_shift(x_d, t, tau_prev)
