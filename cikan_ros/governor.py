@@ -2,7 +2,8 @@
 
 A governor answers, at update time t_k, the time shift tau_k (<= 0 behind the chief, >= 0 ahead) for the deputy state x_d and
 chief state x_c, given the previous shift tau_{k-1}; with the answer comes a record of what it did.
-The learned governor (Algorithm 1, ``cikan_ros.learn``) implements the same protocol.
+The learned governor (Algorithm 1, ``cikan_ros.learn``) implements the same protocol; governors are
+made by name in :mod:`cikan_ros.registry` (this module never imports ``learn/``).
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from typing import Protocol, runtime_checkable
 
 from numpy.typing import ArrayLike
 
-from .config import LEARNED_ALGORITHMS, Config
+from .config import Config
 from .errors import NoFeasibleShiftError
 from .tsg import ChiefAnchor, Predictor
 
@@ -137,38 +138,6 @@ class ConventionalGovernor:
                            update_index(t, self.predictor.config.tsg.update_period_s), tau_prev)
 
 
-#: Names of the learned model families shipped in ``models/`` (see ``cikan_ros.learn``).
-LEARNED_NAMES = ("cikan", "grbf", "rswaf", "relu", "gelu")
-GOVERNOR_NAMES = ("conventional",) + LEARNED_NAMES
-
-
-def campaign_names() -> list[str]:
-    """Every governor of the results campaign (``cikan montecarlo --governor all``): the
-    conventional TSG; each family's default model under the keep rule and under the paper's
-    Algorithm 1; and, where ``models/<family>-prev`` ships (τ_{k-1} as an input), that model
-    under the keep rule."""
-    from .learn.modelfile import MODELS_DIR
-
-    names = list(GOVERNOR_NAMES) + [f"{n}@paper" for n in LEARNED_NAMES]
-    return names + [f"{n}-prev" for n in LEARNED_NAMES if (MODELS_DIR / f"{n}-prev").is_dir()]
-
-
-def shipped_names(cfg: Config) -> list[str]:
-    """The conventional TSG and every learned family with a model for the configuration's
-    scenario and approach side (``scenario.models_dir``)."""
-    from .learn.modelfile import CARD, scenario_model_dir
-
-    return ["conventional"] + [n for n in LEARNED_NAMES if (scenario_model_dir(
-        cfg.scenario.models_dir, n, cfg.mission.approach) / CARD).is_file()]
-
-
-def split_rule(name: str) -> tuple[str, str | None]:
-    """``"cikan@paper"`` -> ("cikan", "paper"): a learned governor with its update rule named
-    (``learned.algorithm``); a name without a known rule suffix -> (name, None)."""
-    base, sep, rule = name.rpartition("@")
-    return (base, rule) if sep and rule in LEARNED_ALGORITHMS else (name, None)
-
-
 def warm_up(governor: Governor, x_d: ArrayLike, x_c: ArrayLike, t: float = 0.0) -> None:
     """Prepare a process to fly a governor: compile or load every kernel its decisions use
     (first-instant search, Verify, bisection, the network) by deciding once at a representative
@@ -191,25 +160,3 @@ def warm_up(governor: Governor, x_d: ArrayLike, x_c: ArrayLike, t: float = 0.0) 
     governor.update(x_d, x_c, t1, tau0)
     gc.collect()
     gc.freeze()
-
-
-def make_governor(name: str, cfg: Config, predictor: Predictor | None = None) -> Governor:
-    """The governor called ``name``: "conventional", a shipped model family, or a model path,
-    optionally with its update rule as ``NAME@keep`` / ``NAME@paper`` (else ``learned.algorithm``).
-
-    Learned governors come from ``cikan_ros.learn``; their files are checked on load and a bad
-    file raises a CikanError naming the problem.
-    """
-    base, rule = split_rule(name)
-    if rule is not None and base != "conventional" and rule != cfg.learned.algorithm:
-        cfg = cfg.replace(**{"learned.algorithm": rule})
-        predictor = None
-    predictor = predictor or Predictor.from_config(cfg)
-    if base == "conventional":
-        return ConventionalGovernor(predictor)
-    from .learn.governor import load_learned_governor  # torch is imported only when needed
-
-    gov = load_learned_governor(base, predictor)
-    if rule is not None:
-        gov.name = f"{gov.name}@{rule}"
-    return gov

@@ -19,10 +19,11 @@ import numpy as np
 
 from .config import Config, config_from_flat
 from .errors import CikanError, NoFeasibleShiftError
-from .robust import UnstableLoopError
-from .governor import GOVERNOR_NAMES, Governor, make_governor, warm_up
+from .governor import Governor, warm_up
 from .mission import MissionResult, nominal_start, run_mission, sample_start
 from .parallel import ordered_map
+from .registry import GOVERNOR_NAMES, make_governor
+from .robust import UnstableLoopError
 
 _GOVERNORS: dict[tuple[str, str], Governor] = {}
 

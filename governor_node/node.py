@@ -22,8 +22,9 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from sensor_msgs.msg import TimeReference
 
-from cikan_ros.governor import make_governor, warm_up
+from cikan_ros.governor import warm_up
 from cikan_ros.mission import ClosedLoop, nominal_start
+from cikan_ros.registry import make_governor
 from cikan_ros.ros import convert as cv
 from cikan_ros.ros.graph import (PATH_HOLD, CHIEF_ODOM, DEPUTY_ODOM, DIAGNOSTICS, GOVERNOR_INFO,
                                  QOS_LATCHED, QOS_STREAM, TIME_SHIFT, Readiness, cached_predictor,

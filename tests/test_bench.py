@@ -74,7 +74,7 @@ def test_realistic_robust_bench_reports_ratio_and_anchoring(realistic):
 def test_realistic_robust_learned_section(realistic, tmp_path):
     pytest.importorskip("safetensors")
     from cikan_ros.analysis.table import bench_index
-    from cikan_ros.governor import LEARNED_NAMES
+    from cikan_ros.registry import LEARNED_NAMES
     from cikan_ros.learn.bench import learned_section
 
     cfg, states = realistic

@@ -87,7 +87,7 @@ def test_on_policy_labels_are_pi_star_where_the_learned_governor_flew(cfg, predi
     """``--governor cikan``: the learned governor's own mission (independently re-flown here),
     each of its active updates labelled with pi* from its own tau_prev; the states and tau_prev
     are its, not the conventional TSG's."""
-    from cikan_ros.governor import make_governor
+    from cikan_ros.registry import make_governor
     from cikan_ros.learn.dataset import mission_plan
     from cikan_ros.mission import run_mission, sample_start
 

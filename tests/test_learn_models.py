@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 
-from cikan_ros.governor import LEARNED_NAMES
+from cikan_ros.registry import LEARNED_NAMES
 from cikan_ros.learn.arch import Arch, NumpyNet, network_forward
 from cikan_ros.learn.errors import ModelFileError
 from cikan_ros.learn.modelfile import CARD, WEIGHTS, load_model, save_model
@@ -225,7 +225,7 @@ def test_missing_and_corrupt_cards_are_clear_errors(tmp_path: Path) -> None:
 
 
 def test_governor_factory_reports_a_bad_model(tmp_path: Path, cfg, predictor) -> None:
-    from cikan_ros.governor import make_governor
+    from cikan_ros.registry import make_governor
 
     d = _saved(tmp_path)
     (d / WEIGHTS).write_bytes(b"\x00" * 10)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from cikan_ros.governor import LEARNED_NAMES, make_governor
+from cikan_ros.registry import LEARNED_NAMES, make_governor
 from cikan_ros.learn.modelfile import MODELS_DIR, load_model
 from cikan_ros.mission import nominal_start, run_mission
 

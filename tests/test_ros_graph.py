@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 from cikan_ros.config import load_config
-from cikan_ros.governor import GOVERNOR_NAMES, make_governor
+from cikan_ros.registry import GOVERNOR_NAMES, make_governor
 from cikan_ros.mission import nominal_start, run_mission
 from cikan_ros.ros.graph import cached_predictor
 from cikan_ros.ros.launch import run_ros_mission

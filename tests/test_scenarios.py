@@ -18,10 +18,11 @@ from cikan_ros.cli import main
 from cikan_ros.config import load_config, scenario_names, scenario_overrides
 from cikan_ros.constraints import h1_line_of_sight
 from cikan_ros.errors import ConfigError
-from cikan_ros.governor import ConventionalGovernor, make_governor
+from cikan_ros.governor import ConventionalGovernor
 from cikan_ros.learn.errors import ModelFileError
 from cikan_ros.learn.modelfile import MODELS_DIR, scenario_model_dir
 from cikan_ros.mission import nominal_shift, nominal_start, run_mission, sample_start
+from cikan_ros.registry import make_governor
 from cikan_ros.tsg import Predictor
 
 COS20 = math.cos(math.radians(20.0))

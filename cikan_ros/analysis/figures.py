@@ -70,7 +70,7 @@ class RunData:
 def _style(gov: str) -> dict:
     """Line style of a governor; ``NAME@paper`` (Algorithm 1) keeps its family's colour, dotted
     thin, and ``NAME-prev`` dash-dotted."""
-    from ..governor import split_rule
+    from ..registry import split_rule
     from .table import family_of
 
     base, rule = split_rule(gov)
@@ -84,7 +84,7 @@ def _style(gov: str) -> dict:
 
 
 def _label(gov: str) -> str:
-    from ..governor import split_rule
+    from ..registry import split_rule
     from .table import family_of
 
     base, rule = split_rule(gov)

@@ -22,9 +22,10 @@ import numpy as np
 
 from ..config import config_from_flat
 from ..errors import CikanError
-from ..governor import PATH_NN, split_rule
+from ..governor import PATH_NN
 from ..mission import errors_against_optimal, rmse, update_states
 from ..montecarlo import load_run_arrays, summarise
+from ..registry import split_rule
 from ..tsg import Predictor
 from .paired import paired_ratio
 
@@ -314,7 +315,7 @@ def bench_index(root: str | Path) -> str:
     against the conventional TSG on the same states in the same run (mean and worst; the network
     trusted), Verify calls per update, and whole missions as flown (trust and stall rule
     included): their active-update speed-up and the share of updates answered by searching."""
-    from ..governor import LEARNED_NAMES
+    from ..registry import LEARNED_NAMES
 
     lines = ["| scenario | side | model | conventional update ms | update speed-up mean / worst "
              "| Verify calls mean (conventional) | mission speed-up as flown | searching |",

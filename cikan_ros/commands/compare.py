@@ -43,7 +43,7 @@ def parse_seeds(text: str) -> list[int]:
 
 def run(args: argparse.Namespace) -> int:
     from ..compare import compare, markdown
-    from ..governor import LEARNED_NAMES
+    from ..registry import LEARNED_NAMES
 
     base = config_from_args(args)
     variants = {"default": base}

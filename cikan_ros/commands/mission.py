@@ -90,8 +90,8 @@ def run(args: argparse.Namespace) -> int:
     args.governor = args.governor or "conventional"
     cfg = config_from_args(args)
     if args.offline:
-        from ..governor import make_governor
         from ..mission import nominal_start, run_mission, sample_start
+        from ..registry import make_governor
 
         governor = make_governor(args.governor, cfg)
         pred = governor.predictor
@@ -108,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
         from ..ros.launch import run_ros_mission
 
         if args.governor_exec is None and args.governor != "conventional":
-            from ..governor import make_governor
+            from ..registry import make_governor
 
             make_governor(args.governor, cfg)  # a bad or foreign model: one line, before any node starts
 

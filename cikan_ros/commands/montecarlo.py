@@ -29,7 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..governor import campaign_names, shipped_names
+    from ..registry import campaign_names, shipped_names
     from ..montecarlo import markdown_summary, run_campaign, summarise
 
     cfg = config_from_args(args)

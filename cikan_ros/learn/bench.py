@@ -42,8 +42,9 @@ from typing import Any
 import numpy as np
 
 from ..config import Config
-from ..governor import LEARNED_NAMES, PATH_KEEP, PATH_NN, ConventionalGovernor
+from ..governor import PATH_KEEP, PATH_NN, ConventionalGovernor
 from ..mission import rmse
+from ..registry import LEARNED_NAMES
 from ..timing import BenchStates, timed_update
 from ..tsg import Predictor
 from .errors import ModelFileError

@@ -31,10 +31,11 @@ from numpy.typing import NDArray
 
 from ..config import Config, config_from_flat
 from ..errors import NoFeasibleShiftError
-from ..governor import ConventionalGovernor, make_governor
+from ..governor import ConventionalGovernor
 from ..mission import MissionResult, run_mission, sample_start
 from ..montecarlo import process_governor
 from ..parallel import ordered_map
+from ..registry import make_governor
 from ..tsg import Predictor
 from .errors import DatasetError
 
