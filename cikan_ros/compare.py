@@ -16,11 +16,11 @@ import json
 from dataclasses import dataclass
 from typing import Any, Iterable
 
-from .analysis.paired import paired_ratio
 from .config import Config
 from .errors import CikanError
 from .mission import run_mission, sample_start
 from .montecarlo import process_governor
+from .paired import paired_ratio
 from .parallel import ordered_map
 
 @dataclass(frozen=True)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from cikan_ros.analysis.report import write_report
-from cikan_ros.analysis.paired import paired_ratio
+from cikan_ros.paired import paired_ratio
 from cikan_ros.analysis.table import COLUMNS, _runs, build_table, to_csv, to_markdown
 from cikan_ros.montecarlo import run_campaign
 

@@ -25,9 +25,9 @@ from ..errors import CikanError
 from ..governor import PATH_NN
 from ..mission import errors_against_optimal, rmse, update_states
 from ..montecarlo import load_run_arrays, summarise
+from ..paired import paired_ratio
 from ..registry import split_rule
 from ..tsg import Predictor
-from .paired import paired_ratio
 
 #: The paper's Table 2 (SPEC §9): complexity, L_train, L_val (x1e-3), RMSE s, time mean/worst s, dV km/s.
 PAPER = {
@@ -191,7 +191,7 @@ def to_markdown(rows: list[dict[str, Any]], paper_rows: bool = True) -> str:
     """Our Table 2 (the paper's all-updates timing, active-phase timing beside it), the paper's
     row under each family; learned rows name their update rule (keep: default, paper: the
     paper's Algorithm 1). ΔV and t(τ=0) also relative to the conventional TSG of the campaign,
-    ΔV with the standard error of that paired ratio (``analysis.paired``). ``paper_rows``
+    ΔV with the standard error of that paired ratio (``cikan_ros.paired``). ``paper_rows``
     False: without the paper's rows (another scenario or approach side)."""
     head = ("| model | rule | params (trainable) | complexity n²ℓ(G+3) | L_train, L_val ×1e-3 "
             "| RMSE τ (s) all / active | update ms mean / worst | speed-up mean / worst "

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cikan_ros.analysis.paired import paired_ratio
+from cikan_ros.paired import paired_ratio
 
 
 def test_with_unit_denominators_it_is_the_standard_error_of_the_mean() -> None:
