@@ -97,7 +97,7 @@ def tube_constants(orbit: KeplerOrbit, cfg: ControlConfig, bias: float = 0.0,
             f"thruster errors of {bias:.1%} in magnitude and {math.degrees(pointing_rad):.2f} deg in "
             f"pointing destabilise the FTRE loop with control weight R = {cfg.r_diag[0]:g} I (spectral "
             f"radius {out['lam']:.4f} >= 1): no error tube exists; a larger control.robust_r_diag "
-            "widens the loop's gain margin (python -m cikan_ros.robust prints it)")
+            "widens the loop's gain margin (cikan tube prints it)")
     lam = out["lam"] = out["lam"] * (1.0 + 1e-6)
     rows = {"p": np.hstack([np.eye(3), np.zeros((3, 3))]), "v": np.hstack([np.zeros((3, 3)), np.eye(3)])}
 
@@ -197,32 +197,3 @@ def gain_margin(orbit: KeplerOrbit, cfg: ControlConfig, tol: float = 1e-4) -> fl
         except UnstableLoopError:
             hi = mid
     return lo
-
-
-def main(argv: list[str] | None = None) -> int:
-    """``python -m cikan_ros.robust [--truth NAME] [--set KEY=VALUE ...]``: the tube constants of
-    a configuration and the FTRE loop's gain margin (the figures docs/robustness.md quotes)."""
-    import argparse
-    import json
-
-    from .commands import add_config_args, config_from_args
-
-    parser = argparse.ArgumentParser(prog="python -m cikan_ros.robust", description=main.__doc__)
-    add_config_args(parser)
-    args = parser.parse_args(argv)
-    cfg = config_from_args(args)
-    orbit = KeplerOrbit.from_config(cfg.orbit)
-    truth = cfg.truth
-    control = control_config(cfg)
-    out: dict[str, object] = {"r_diag": list(control.r_diag), "gain_margin": gain_margin(orbit, control)}
-    try:
-        out.update(tube_constants(orbit, control, truth.bound("thrust_bias_max"),
-                                  math.radians(truth.bound("thrust_pointing_max_deg"))))
-    except UnstableLoopError as exc:
-        out["unstable"] = str(exc)
-    print(json.dumps(out, indent=1))
-    return 0
-
-
-if __name__ == "__main__":  # pragma: no cover
-    raise SystemExit(main())
