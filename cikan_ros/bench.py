@@ -1,4 +1,7 @@
-"""Benchmarks behind ``cikan bench``: time governors on the same recorded update states.
+"""The conventional TSG's sections of ``cikan bench``: time it on recorded update states.
+
+``cikan bench`` (``cikan_ros.commands.bench``) runs these sections, then the learned governors'
+(``cikan_ros.learn.bench``) and the ROS graph's (``cikan_ros.ros.bench``), on the same states.
 
 States come from conventional-TSG missions flown under the configuration benchmarked (the
 nominal start and Monte Carlo seeds 1..N-1, each with its truth seed; ``cikan_ros.timing``).
@@ -21,20 +24,16 @@ the benchmark before the truth model.
 
 from __future__ import annotations
 
-import statistics
-import time
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 from .config import Config
 from .governor import ConventionalGovernor
-from .timing import (BenchStates, anchoring_figures, collect_states, is_nominal, nominal_config,
-                     time_updates, timed_update)
+from .timing import (BenchStates, anchoring_figures, collect_states, is_nominal, median_thread_time,
+                     nominal_config, thread_timed, time_updates)
 from .tsg import Predictor
 from .units import through_si
-
-__all__ = ["BenchStates", "collect_states", "timed_update", "time_updates", "run_bench", "SECTIONS"]
 
 
 def conventional_section(cfg: Config, states: BenchStates, repeats: int) -> dict[str, Any]:
@@ -44,19 +43,10 @@ def conventional_section(cfg: Config, states: BenchStates, repeats: int) -> dict
     gov = ConventionalGovernor(pred)
     walls, taus, _, calls, re_anchored = time_updates(gov, states, repeats)
     states.conventional_walls, states.conventional_taus = walls, taus
-    init = []
-    for x0 in states.first_seen:
-        runs = []
-        for _ in range(repeats):
-            start = time.thread_time()
-            pred.initial_shift(through_si(x0), 0.0)
-            runs.append(time.thread_time() - start)
-        init.append(statistics.median(runs))
-    verify = []
-    for s in states.updates:
-        start = time.thread_time()
-        pred.verify(s.x_d, s.t, s.tau_prev)  # tau_prev is feasible: a full rollout to the terminal set
-        verify.append(time.thread_time() - start)
+    init = [median_thread_time(pred.initial_shift, through_si(x0), 0.0, repeats=repeats)[0]
+            for x0 in states.first_seen]
+    # tau_prev is feasible: a full rollout to the terminal set
+    verify = [thread_timed(pred.verify, s.x_d, s.t, s.tau_prev)[1] for s in states.updates]
     out: dict[str, Any] = {
         "n_missions": len(states.starts),
         "n_update_states": len(states.updates),
@@ -104,38 +94,4 @@ def nominal_section(cfg: Config, states: BenchStates, repeats: int) -> dict[str,
         float(ours.mean() * 1e3) / nominal["conventional_update_ms_mean"])
     out["conventional_update_ms_max_ratio_to_nominal"] = (
         float(ours.max() * 1e3) / nominal["conventional_update_ms_max"])
-    return out
-
-
-#: Sections of the benchmark report, each (cfg, states, repeats) -> {name: figure}.
-SECTIONS: list[Callable[[Config, BenchStates, int], dict[str, Any]]] = [conventional_section,
-                                                                         nominal_section]
-
-
-def learned_section(cfg: Config, states: BenchStates, repeats: int) -> dict[str, Any]:
-    """Learned governors of ``models/`` and the dataset rate (``cikan_ros.learn.bench``)."""
-    from .learn.bench import learned_section as section
-
-    return section(cfg, states, repeats)
-
-
-SECTIONS.append(learned_section)
-
-
-def ros_section(cfg: Config, states: BenchStates, repeats: int) -> dict[str, Any]:
-    """The ROS graph's lockstep figures (cikan_ros.ros.bench); imported lazily (needs rclpy)."""
-    from .ros.bench import ros_section as section
-
-    return section(cfg, states, repeats)
-
-
-SECTIONS.append(ros_section)
-
-
-def run_bench(cfg: Config, n_missions: int = 6, repeats: int = 3) -> dict[str, Any]:
-    """All benchmark figures in one run (ratios are comparable only within one run)."""
-    states = collect_states(cfg, n_missions)
-    out: dict[str, Any] = {}
-    for section in SECTIONS:
-        out.update(section(cfg, states, repeats))
     return out

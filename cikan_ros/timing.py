@@ -1,8 +1,9 @@
 """Update states and per-update timing shared by the sections of ``cikan bench``.
 
-Below both ``cikan_ros.bench`` (which runs the sections, the ROS one included) and
-``cikan_ros.learn.bench`` (the learned governors' section), so that ``learn/`` never reaches
-``ros/`` through the benchmark.
+Below ``cikan_ros.bench`` (the conventional TSG's sections), ``cikan_ros.learn.bench`` (the
+learned governors' section) and ``cikan_ros.commands.bench`` (``cikan bench``: every section, the
+ROS one included), so that ``learn/`` never reaches ``ros/`` through the benchmark. Every timing
+goes through :func:`thread_timed` (one call) or :func:`median_thread_time` (the median of repeats).
 
 States come from conventional-TSG missions flown under the configuration being benchmarked
 (truth and Verify): the nominal start (truth seed None, as ``cikan mission``) and the Monte
@@ -31,10 +32,11 @@ wall time also counts the time the process waits for a core (SPEC §9: compare r
 
 from __future__ import annotations
 
+import functools
 import statistics
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Callable, TypeVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -44,6 +46,27 @@ from .errors import CikanError, NoFeasibleShiftError
 from .governor import ConventionalGovernor, Governor, UpdateRecord
 from .mission import UpdateState, nominal_start, run_mission, sample_start
 from .orbit import KeplerOrbit
+
+T = TypeVar("T")
+
+
+def thread_timed(fn: Callable[..., T], *args: Any) -> tuple[T, float]:
+    """``fn(*args)`` and the CPU time (s) the calling thread spent in it (``time.thread_time``)."""
+    start = time.thread_time()
+    out = fn(*args)
+    return out, time.thread_time() - start
+
+
+def median_thread_time(fn: Callable[..., T], *args: Any, repeats: int,
+                       setup: Callable[[], object] | None = None) -> tuple[float, T]:
+    """The median over ``repeats`` calls of ``fn(*args)`` of its thread CPU time (s), each call
+    preceded by ``setup()`` (untimed) when given, and the first call's result."""
+    runs = []
+    for _ in range(repeats):
+        if setup is not None:
+            setup()
+        runs.append(thread_timed(fn, *args))
+    return statistics.median(cpu for _, cpu in runs), runs[0][0]
 
 
 @dataclass
@@ -163,9 +186,7 @@ def timed_update(governor: Governor, s: UpdateState, prior: KeplerOrbit | None =
     """One update at state s, the anchor first set to ``prior`` (untimed), and its CPU time (s)
     in this thread: the anchoring, any re-anchoring and chief-table fill included."""
     prime_anchor(governor, prior)
-    start = time.thread_time()
-    rec = governor.update(s.x_d, s.x_c, s.t, s.tau_prev)
-    return rec, time.thread_time() - start
+    return thread_timed(governor.update, s.x_d, s.x_c, s.t, s.tau_prev)
 
 
 def time_updates(governor: Governor, states: BenchStates, repeats: int = 3
@@ -176,15 +197,13 @@ def time_updates(governor: Governor, states: BenchStates, repeats: int = 3
     walls, taus, calls, re_anchored = np.empty(n), np.empty(n), np.empty(n), np.zeros(n, dtype=bool)
     paths: list[str] = []
     for i, (s, prior) in enumerate(zip(states.updates, states.priors)):
-        runs = []
-        for _ in range(repeats):
-            before = governor.anchor.re_anchors
-            runs.append(timed_update(governor, s, prior))
-            re_anchored[i] |= governor.anchor.re_anchors > before
-        walls[i] = statistics.median(cpu for _, cpu in runs)
-        taus[i] = runs[0][0].tau_s
-        calls[i] = runs[0][0].verify_calls
-        paths.append(runs[0][0].path)
+        before = governor.anchor.re_anchors
+        walls[i], rec = median_thread_time(governor.update, s.x_d, s.x_c, s.t, s.tau_prev, repeats=repeats,
+                                           setup=functools.partial(prime_anchor, governor, prior))
+        re_anchored[i] = governor.anchor.re_anchors > before
+        taus[i] = rec.tau_s
+        calls[i] = rec.verify_calls
+        paths.append(rec.path)
     governor.anchor.current = governor.anchor.base
     return walls, taus, paths, calls, re_anchored
 
@@ -209,41 +228,27 @@ def anchoring_figures(governor: ConventionalGovernor, states: BenchStates, repea
       the caller, which has both).
     """
     a = governor.anchor
+
+    def aim(orbit: KeplerOrbit) -> None:
+        a.current = a.base.with_orbit(orbit)
+
     anchor_ms, check_ms, cold_ms, warm_ms, upd_ms = [], [], [], [], []
     for s in states.updates:
         off = KeplerOrbit.from_state(np.asarray(s.x_c) + _OFFSET_KM, s.t, a.base.orbit.mu)
-        runs = []
-        for _ in range(repeats):
-            a.current = a.base.with_orbit(off)  # 1 km off the state's chief: re-anchors
-            start = time.thread_time()
-            pred = a(s.x_c, s.t)
-            runs.append(time.thread_time() - start)
-        anchor_ms.append(statistics.median(runs))
-        runs = []
-        for _ in range(repeats):
-            start = time.thread_time()
-            a(s.x_c, s.t)
-            runs.append(time.thread_time() - start)
-        check_ms.append(statistics.median(runs))
+        # 1 km off the state's chief before each call: every call re-anchors.
+        cpu, pred = median_thread_time(a, s.x_c, s.t, repeats=repeats, setup=functools.partial(aim, off))
+        anchor_ms.append(cpu)
+        check_ms.append(median_thread_time(a, s.x_c, s.t, repeats=repeats)[0])
         cold, warm = [], []
         for _ in range(repeats):
             fresh = a.base.with_orbit(pred.orbit)
-            start = time.thread_time()
-            fresh.verify(s.x_d, s.t, s.tau_prev)
-            cold.append(time.thread_time() - start)
-            start = time.thread_time()
-            fresh.verify(s.x_d, s.t, s.tau_prev)
-            warm.append(time.thread_time() - start)
+            cold.append(thread_timed(fresh.verify, s.x_d, s.t, s.tau_prev)[1])
+            warm.append(thread_timed(fresh.verify, s.x_d, s.t, s.tau_prev)[1])
         cold_ms.append(statistics.median(cold))
         warm_ms.append(statistics.median(warm))
         a.current = pred
         governor.update(s.x_d, s.x_c, s.t, s.tau_prev)  # fills the table (untimed)
-        runs = []
-        for _ in range(repeats):
-            start = time.thread_time()
-            governor.update(s.x_d, s.x_c, s.t, s.tau_prev)
-            runs.append(time.thread_time() - start)
-        upd_ms.append(statistics.median(runs))
+        upd_ms.append(median_thread_time(governor.update, s.x_d, s.x_c, s.t, s.tau_prev, repeats=repeats)[0])
     a.current = a.base
     upd = np.array(upd_ms)
     return {

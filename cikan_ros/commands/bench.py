@@ -1,10 +1,41 @@
-"""``cikan bench``: time the governors (and later the ROS graph) on one machine in one run."""
+"""``cikan bench``: time the governors and the ROS graph on one machine in one run."""
 
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING, Any, Callable
 
+from ..config import Config
 from . import add_config_args, config_from_args, dumps
+
+if TYPE_CHECKING:
+    from ..timing import BenchStates
+
+#: A section of the report: (configuration, update states, repeats) -> {name: figure}.
+Section = Callable[[Config, "BenchStates", int], dict[str, Any]]
+
+
+def sections() -> list[Section]:
+    """The report's sections, in order: the conventional TSG (under the configuration, then under
+    the nominal one: ``cikan_ros.bench``), the learned governors (``cikan_ros.learn.bench``) and
+    the ROS graph's lockstep (``cikan_ros.ros.bench``, which needs rclpy only when it runs)."""
+    from ..bench import conventional_section, nominal_section
+    from ..learn.bench import learned_section
+    from ..ros.bench import ros_section
+
+    return [conventional_section, nominal_section, learned_section, ros_section]
+
+
+def run_bench(cfg: Config, n_missions: int = 6, repeats: int = 3) -> dict[str, Any]:
+    """All benchmark figures in one run (ratios are comparable only within one run), every
+    section on the same update states (``cikan_ros.timing.collect_states``)."""
+    from ..timing import collect_states
+
+    states = collect_states(cfg, n_missions)
+    out: dict[str, Any] = {}
+    for section in sections():
+        out.update(section(cfg, states, repeats))
+    return out
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -19,7 +50,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..bench import run_bench
     from ..errors import ConfigError
 
     if args.missions < 1 or args.repeats < 1:

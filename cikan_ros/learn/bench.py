@@ -1,4 +1,4 @@
-"""The learned governors' section of ``cikan bench`` (appended to ``cikan_ros.bench.SECTIONS``).
+"""The learned governors' section of ``cikan bench`` (after ``cikan_ros.bench``'s sections).
 
 Per shipped model ``<m>`` in ``models/``, on the same active-phase update states as the
 conventional TSG and in the same run, under the default update rule (``learned.algorithm``,
@@ -45,7 +45,7 @@ from ..config import Config
 from ..governor import PATH_KEEP, PATH_NN, ConventionalGovernor
 from ..mission import rmse
 from ..registry import LEARNED_NAMES
-from ..timing import BenchStates, timed_update
+from ..timing import BenchStates, median_thread_time, timed_update
 from ..tsg import Predictor
 from .errors import ModelFileError
 
@@ -157,14 +157,8 @@ def learned_section(cfg: Config, states: BenchStates, repeats: int) -> dict[str,
             # TSG's answer, timed above (its update is pi*, SPEC §5).
             out.update(_rule_figures(prefix, walls, taus, paths, calls, conv_walls,
                                      taus - conv_taus, tau_prev))
-        fwd = []
-        for s in states.updates:
-            runs = []
-            for _ in range(repeats):
-                t0 = time.thread_time()
-                gov.proposal(s.x_d, s.x_c, s.tau_prev)
-                runs.append(time.thread_time() - t0)
-            fwd.append(statistics.median(runs))
+        fwd = [median_thread_time(gov.proposal, s.x_d, s.x_c, s.tau_prev, repeats=repeats)[0]
+               for s in states.updates]
         out[f"{name}_forward_us_mean"] = float(np.mean(fwd) * 1e6)
     out.update(mission_figures(ConventionalGovernor(pred), govs, states))
     if missing:
