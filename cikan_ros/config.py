@@ -387,6 +387,12 @@ class Config:
         """Sign of this mission's time shifts: -1 behind (tau <= 0), +1 ahead (tau >= 0)."""
         return approach_sign(self.mission.approach)
 
+    @property
+    def thrust_limit_kmps2(self) -> float:
+        """The h2 limit on the thrust the truth applies (km/s^2): the commanded bound u_max times
+        the declared thruster error's largest magnification (``truth.max_thrust_factor``)."""
+        return self.control.u_max_kmps2 * self.truth.max_thrust_factor
+
     def __post_init__(self) -> None:
         ratio = self.tsg.update_period_s / self.control.period_s
         _check(abs(ratio - round(ratio)) < 1e-9 and round(ratio) >= 1, "tsg.update_period_s",

@@ -62,7 +62,7 @@ class SimNode(Node):
         self.n_steps = self.loop.n_steps
         self.truth = Truth(cfg, None if seed < 0 else seed, self.n_steps)
         self.u_max = cfg.control.u_max_kmps2
-        self.u_limit = self.u_max * cfg.truth.max_thrust_factor  # h2 on the truth
+        self.u_limit = cfg.thrust_limit_kmps2  # h2 on the truth
         self.k = 0
         self.x_c = np.zeros(6)
         self.waiting = False

@@ -176,7 +176,7 @@ def mission_from_bag(path: str | Path, cfg: Config, governor: str,
                              "without gaps")
     n = len(deputy)
     u_max = cfg.control.u_max_kmps2
-    limit = u_max * cfg.truth.max_thrust_factor
+    limit = cfg.thrust_limit_kmps2
     shifts = _first_valid(msgs.get(TIME_SHIFT, []), tl, lambda m: shift_from_msg(m, cfg.side)[1:])
     commands = _first_valid(msgs.get(ACCEL_CMD, []), tl, lambda m: accel_from_msg(m, u_max))
     if has_truth:  # the thrust as applied (the simulator's step records below take precedence)
