@@ -11,7 +11,8 @@ import pytest
 from cikan_ros.bench import conventional_section, nominal_section
 from cikan_ros.config import load_config, truth_overrides
 from cikan_ros.errors import CikanError
-from cikan_ros.timing import collect_states, is_nominal, nominal_config
+from cikan_ros import timing
+from cikan_ros.timing import collect_states, is_nominal, median_thread_time, nominal_config
 
 #: The conventional section's keys before the truth model: a nominal run reports exactly these,
 #: and a non-nominal one reports them again as ``nominal_<key>``.
@@ -40,6 +41,22 @@ def tiny(states):
 def realistic():
     cfg = load_config(None, **truth_overrides("realistic"), **{"tsg.robust": True})
     return cfg, tiny(collect_states(cfg, 1))
+
+
+def test_median_thread_time_times_each_call_after_its_setup(monkeypatch):
+    """On a fake thread clock, calls of 3, 1 and 2 ticks give the median 2; setup runs before each
+    call and outside the timed span; the first call's result comes back."""
+    ticks = iter([0.0, 3.0, 10.0, 11.0, 20.0, 22.0])   # (start, end) of each call
+    monkeypatch.setattr(timing.time, "thread_time", lambda: next(ticks))
+    events: list[str] = []
+
+    def call(x: int) -> int:
+        events.append("call")
+        return x + events.count("call")
+
+    cpu, first = median_thread_time(call, 10, repeats=3, setup=lambda: events.append("setup"))
+    assert (cpu, first) == (2.0, 11)
+    assert events == ["setup", "call"] * 3
 
 
 def test_nominal_run_keeps_its_keys():
