@@ -1,5 +1,5 @@
-"""colcon from the package index builds the package as a ROS user would (README "colcon and ROS 2
-launch": the repository linked into a workspace's src/), plain and with --symlink-install; the
+"""colcon from the package index builds the package as a ROS user would (docs/ros_graph.md, "colcon
+and ROS 2 launch": the repository linked into a workspace's src/), plain and with --symlink-install; the
 install has what ROS expects, and the installed nodes fly a short mission in which the installed
 governor loads its model from share/cikan_ros. Judged by the files and by the bag."""
 

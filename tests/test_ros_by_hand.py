@@ -1,6 +1,6 @@
-"""README "Running the nodes by hand": the recipe runs exactly as written (one bash per shell, in a
-directory laid out like the repository), flies the mission and leaves a bag that names the
-governor that flew, as the governor announced it. Judged by the bag, read with rosbags."""
+"""docs/ros_graph.md, "Running the nodes by hand": the recipe runs exactly as written (one bash per
+shell, in a directory laid out like the repository), flies the mission and leaves a bag that names
+the governor that flew, as the governor announced it. Judged by the bag, read with rosbags."""
 
 from __future__ import annotations
 
@@ -22,10 +22,10 @@ __all__ = ["ros_env"]
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def readme_recipe() -> tuple[str, list[tuple[str, str]]]:
-    """(lines for every shell, [(shell comment, command)]) of the README's by-hand block."""
-    text = (ROOT / "README.md").read_text()
-    section = text.split("### Running the nodes by hand", 1)[1]
+def by_hand_recipe() -> tuple[str, list[tuple[str, str]]]:
+    """(lines for every shell, [(shell comment, command)]) of the by-hand block of docs/ros_graph.md."""
+    text = (ROOT / "docs" / "ros_graph.md").read_text()
+    section = text.split("## Running the nodes by hand", 1)[1]
     block = re.search(r"```sh\n(.*?)```", section, re.S).group(1)
     prelude, shells = [], []
     comment = None
@@ -41,8 +41,8 @@ def readme_recipe() -> tuple[str, list[tuple[str, str]]]:
 
 
 @pytest.mark.slow
-def test_readme_recipe_flies_and_names_the_governor(ros_env: int, tmp_path: Path) -> None:
-    prelude, shells = readme_recipe()
+def test_by_hand_recipe_flies_and_names_the_governor(ros_env: int, tmp_path: Path) -> None:
+    prelude, shells = by_hand_recipe()
     assert [c.split(":")[0] for c, _ in shells] == ["# shell 1", "# shell 2", "# shell 3", "# shell 4"]
     assert [cmd.split()[0] for _, cmd in shells] == ["recorder_node", "governor_node", "controller_node",
                                                      "sim_node"]

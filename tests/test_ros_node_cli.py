@@ -19,7 +19,7 @@ from ros_helpers import ros_env
 __all__ = ["ros_env"]
 BIN = Path(sys.executable).parent
 ROOT = Path(__file__).resolve().parent.parent
-#: Node executable -> the groups of config/nodes.yaml it declares (README / config/nodes.yaml header).
+#: Node executable -> the groups of config/nodes.yaml it declares (docs/ros_graph.md / config/nodes.yaml header).
 NODES = {"sim_node": ("sim", "graph"), "governor_node": ("governor", "graph"),
          "controller_node": ("controller", "graph"), "recorder_node": ("recorder", "graph")}
 

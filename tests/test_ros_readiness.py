@@ -1,4 +1,4 @@
-"""The readiness handshake (README, "Start") and the lockstep's determinism under CPU load: a
+"""The readiness handshake (docs/governor_contract.md, "Start") and the lockstep's determinism under CPU load: a
 governor that reads only /deputy/odom flies; a naive governor of today's contract (no announcement,
 answers as soon as it hears a state) and a built-in governor each give identical recordings
 (wall-clock fields aside) when flown twice with every core busy; a deadline that fires fails the run.

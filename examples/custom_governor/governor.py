@@ -1,5 +1,5 @@
-"""A governor written from the README's governor contract: pi* (bisection over [tau_prev, 0]) at each
-update, with the cikan_ros library. Fly it: cikan mission --governor-exec "python THIS_FILE" """
+"""A governor written from the contract in docs/governor_contract.md: pi* (bisection over [tau_prev,
+0]) at each update, with the cikan_ros library. Fly it: cikan mission --governor-exec "python THIS_FILE" """
 import rclpy
 from builtin_interfaces.msg import Time
 from nav_msgs.msg import Odometry

@@ -1,4 +1,4 @@
-"""The governors of this directory flown in place of governor_node, the way the README says:
+"""The governors of this directory flown in place of governor_node, the way docs/governor_contract.md says:
 `cikan mission --governor-exec "python <file>"` (real processes, real DDS, a private domain).
 
 The bag is read back with rosbags (an independent reader), the constraints rechecked with numpy.
