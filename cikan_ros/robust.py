@@ -249,8 +249,9 @@ def tube_step(rp: NDArray, u_max: float, ts: float, rng: float, vrel: float, rho
 
     rho, sigma bound the position (km) and velocity (km/s) error at j; rng, vrel are the
     predicted range (km) and relative speed (km/s), a_n the unsaturated and un the saturated
-    command magnitude (km/s^2), grad the gravity gradient's bound in the tube (1/s^2); m = |K_p| (rho + b_p) + |K_v| (sigma + b_v) bounds how far the
-    command of a state in the tube may differ from the prediction's.
+    command magnitude (km/s^2), grad the gravity gradient's bound in the tube (1/s^2);
+    m = |K_p| (rho + b_p) + |K_v| (sigma + b_v) bounds how far the command of a state in the
+    tube may differ from the prediction's.
     - Not every state of the tube saturates (a_n - m < u_max): the closed loop flown with the
       thruster map M, Phi_M = A - B M K (lam and the constants are the worst over M). The error is
       the navigation error's DC response G (b_p, b_v) plus a transient R, S that decays like

@@ -38,8 +38,8 @@ import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .config import Config, control_config, prediction_gravity
-from .constraints import (C_PORT, C_UMAX, constraint_params, h1_line_of_sight_kernel, h2_thrust_kernel,
+from .config import Config, Side, control_config, prediction_gravity
+from .constraints import (C_UMAX, constraint_params, h1_line_of_sight_kernel, h2_thrust_kernel,
                           h3_approach_velocity_kernel)
 from .control import ftre_control_kernel, gain_table
 from .dynamics import j2_coefficient, rk4_kernel
@@ -402,9 +402,10 @@ class Predictor:
         return new
 
     @property
-    def side(self) -> int:
-        """Sign of the shifts: -1 behind the chief (tau <= 0), +1 ahead (tau >= 0)."""
-        return -1 if self.cparams[C_PORT] > 0.0 else 1
+    def side(self) -> Side:
+        """The approach side, the sign of the shifts: BEHIND (-1, tau <= 0) or AHEAD (+1,
+        tau >= 0); the configuration's (the port in ``cparams`` was packed from it)."""
+        return self.config.side
 
     @property
     def tol_ns(self) -> int:
@@ -548,7 +549,7 @@ class Predictor:
         tau, calls, found = initial_search_kernel(self.orbit.params, self.gains, self.cparams,
                                                   self.tparams, self.rparams, x, t, to_ns(cfg.initial_window_s),
                                                   to_ns(cfg.initial_grid_s), self.tol_ns, c.rows, c.t0,
-                                                  self.side)
+                                                  int(self.side))
         if not found:
             truth = self.config.truth
             under = (f" under robust Verify with the bounds of truth {truth.name!r} x {truth.scale:g}"

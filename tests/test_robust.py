@@ -97,7 +97,7 @@ def test_thruster_errors_beyond_the_gain_margin_are_refused():
 def test_robust_h1_holds_on_the_whole_ball(theta, rng_km, rho_frac, seed):
     """If robust_h1_ok(x, rho), every point within rho of x satisfies h1 <= 0 (or lies within
     the apex radius): the cone's surface is rho or more away."""
-    cp = constraint_params(CFG.constraints, CFG.control.u_max_kmps2)
+    cp = constraint_params(CFG.constraints, CFG.control.u_max_kmps2, CFG.side)
     x_c = ORBIT.state(0.0)
     axis = -x_c[3:] / np.linalg.norm(x_c[3:])
     perp = np.cross(axis, [0.0, 0.0, 1.0])

@@ -58,6 +58,7 @@ from ..governor import (PATH_AUDIT, PATH_BISECT, PATH_INITIAL, PATH_KEEP, PATH_N
                         PATH_SEARCH,
                         PATH_STALL, PATH_VERIFY_ZERO, PATH_ZERO, UpdateRecord, initial_update, make_record,
                         start_clock, update_index)
+from ..config import Side
 from ..tsg import ChiefAnchor, ChiefCache, Predictor, quantise_shift
 from ..units import ns_to_seconds, seconds_to_ns as to_ns
 from .arch import FAMILIES, NumpyNet, log_shift_kernel
@@ -73,7 +74,7 @@ STALL_BACKOFF = 8
 SEARCHED = (PATH_SEARCH, PATH_STALL)
 
 
-def stall_miss(side: int, tau_prev: float, tau: float, reach: float) -> bool:
+def stall_miss(side: Side, tau_prev: float, tau: float, reach: float) -> bool:
     """Did a stall search's answer tau move beyond ``reach`` (a fraction of |tau_prev|) from
     tau_prev? reach 0: any progress. In magnitudes m = side · τ."""
     return side * tau < side * tau_prev * (1.0 - reach)
@@ -287,7 +288,7 @@ class LearnedGovernor:
             # calls); a safe answer either way (verified, or tau_prev).
             tau, calls = pred.optimal_shift(x_d, t, tau_prev)
             return tau, PATH_PROBE, calls, None
-        n = ladder_kernel(tau_c, tau_prev, pred.side, self._ladder, lc.min_step_s, lc.min_progress,
+        n = ladder_kernel(tau_c, tau_prev, int(pred.side), self._ladder, lc.min_step_s, lc.min_progress,
                           self._cands_ns)
         if n:
             cache = pred.cache(t)
@@ -354,7 +355,7 @@ class LearnedGovernor:
         learned.min_progress). In magnitudes m = side · τ, so one rule serves both sides."""
         lc = self.predictor.config.learned
         out = np.empty(len(lc.ladder), dtype=np.int64)
-        n = ladder_kernel(float(tau_c), float(tau_prev), self.predictor.side, self._ladder, lc.min_step_s,
+        n = ladder_kernel(float(tau_c), float(tau_prev), int(self.predictor.side), self._ladder, lc.min_step_s,
                           lc.min_progress, out)
         return [ns_to_seconds(int(v)) for v in out[:n]]
 
