@@ -388,7 +388,7 @@ class Predictor:
         """This model with nominal Verify (robustness off, and so the nominal controller and
         prediction model), for the same chief orbit: what decides which starts a campaign
         flies, so nominal and robust Verify fly the same starts."""
-        if not self.rparams[R_ON]:
+        if not self.robust:
             return self
         return Predictor.from_config(self.config.replace(**{"tsg.robust": False})).with_orbit(self.orbit)
 
@@ -406,6 +406,13 @@ class Predictor:
         """The approach side, the sign of the shifts: BEHIND (-1, tau <= 0) or AHEAD (+1,
         tau >= 0); the configuration's (the port in ``cparams`` was packed from it)."""
         return self.config.side
+
+    @property
+    def robust(self) -> bool:
+        """Is Verify robust (``tsg.robust``; the kernels read the flag ``R_ON`` that
+        :func:`~cikan_ros.robust.robust_params` packed from it)? Every Python-side question
+        about robustness asks this."""
+        return self.config.tsg.robust
 
     @property
     def tol_ns(self) -> int:
@@ -553,7 +560,7 @@ class Predictor:
         if not found:
             truth = self.config.truth
             under = (f" under robust Verify with the bounds of truth {truth.name!r} x {truth.scale:g}"
-                     if self.rparams[R_ON] else "")
+                     if self.robust else "")
             window = f"[-{cfg.initial_window_s:g}, 0]" if self.side < 0 else f"[0, {cfg.initial_window_s:g}]"
             raise NoFeasibleShiftError(
                 f"no feasible time shift in {window} s for this initial "
