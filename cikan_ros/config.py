@@ -8,8 +8,10 @@ code, so both run on one set of values. Every value is validated on load; a bad 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass, field, fields
+from enum import IntEnum
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -168,15 +170,29 @@ class TSGConfig:
                self.zero_snap_s, "must be >= 0")
 
 
-#: Sides of the chief a deputy approaches from: "behind" (tau <= 0 rising to 0; the paper's)
-#: and "ahead" (tau >= 0 falling to 0). The docking port faces the approach: against the
-#: chief's velocity for "behind", along it for "ahead".
-APPROACHES = ("behind", "ahead")
+class Side(IntEnum):
+    """The side of the chief a deputy approaches from (``mission.approach``), valued as the sign
+    of its time shifts: BEHIND = -1 (tau <= 0 rising to 0; the paper's), AHEAD = +1 (tau >= 0
+    falling to 0). The docking port faces the approach: against the chief's velocity behind,
+    along it ahead (the port's sign in h1 is -side). Built once per configuration
+    (:attr:`Config.side`); compiled kernels take ``int(side)`` or ``float(side)``."""
+
+    BEHIND = -1
+    AHEAD = 1
+
+    @classmethod
+    def of(cls, approach: str) -> "Side":
+        """The side named by a ``mission.approach`` value ("behind" or "ahead")."""
+        return cls[approach.upper()]
+
+    @property
+    def approach(self) -> str:
+        """The ``mission.approach`` value naming this side."""
+        return self.name.lower()
 
 
-def approach_sign(approach: str) -> int:
-    """The sign of the time shifts of an approach: -1 behind (tau <= 0), +1 ahead (tau >= 0)."""
-    return -1 if approach == "behind" else 1
+#: The ``mission.approach`` values, one per :class:`Side`.
+APPROACHES = tuple(side.approach for side in Side)
 
 
 @dataclass(frozen=True)
@@ -382,10 +398,11 @@ class Config:
     truth: TruthConfig = field(default_factory=TruthConfig)
     scenario: ScenarioConfig = field(default_factory=ScenarioConfig)
 
-    @property
-    def side(self) -> int:
-        """Sign of this mission's time shifts: -1 behind (tau <= 0), +1 ahead (tau >= 0)."""
-        return approach_sign(self.mission.approach)
+    @functools.cached_property
+    def side(self) -> Side:
+        """The approach side of this mission (``mission.approach``, the one place it is read):
+        BEHIND (tau <= 0) or AHEAD (tau >= 0)."""
+        return Side.of(self.mission.approach)
 
     @property
     def thrust_limit_kmps2(self) -> float:

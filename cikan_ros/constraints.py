@@ -5,7 +5,8 @@
   h1 = v_c^T p_rel + cos(alpha) |v_c| |p_rel| (the paper prints the opposite sign; it contradicts
   its own docking-port statement). Approaching from ahead it points along v_c:
   h1 = -v_c^T p_rel + cos(alpha) |v_c| |p_rel|. One kernel: h1 = a v_c^T p_rel + ..., with the
-  port sign a = -side (side = -1 behind, +1 ahead; ``mission.approach``).
+  port sign a = -side (:class:`~cikan_ros.config.Side`: -1 behind, +1 ahead; every caller passes
+  the mission's side, ``Config.side``).
 - h2, thrust: |u| - u_max.
 - h3, approach velocity, active when |p_rel| <= gamma1: h3 = |v_rel| - gamma2 |p_rel| - gamma3.
 
@@ -23,19 +24,18 @@ import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .config import ConstraintConfig
+from .config import ConstraintConfig, Side
 
 # Layout of the packed constraint parameters used by compiled kernels.
 C_COS_ALPHA, C_APEX, C_GAMMA1, C_GAMMA2, C_GAMMA3, C_UMAX, C_PORT = range(7)
 
 
-def constraint_params(cfg: ConstraintConfig, u_max: float, side: int = -1) -> NDArray:
-    """Pack the constraint parameters for the kernels (layout ``C_*``); ``side`` is the
-    approach's shift sign (-1 behind, +1 ahead), which points the docking port."""
-    if side not in (-1, 1):
-        raise ValueError(f"side must be -1 (behind) or +1 (ahead), got {side!r}")
+def constraint_params(cfg: ConstraintConfig, u_max: float, side: Side) -> NDArray:
+    """Pack the constraint parameters for the kernels (layout ``C_*``); the approach ``side``
+    points the docking port (C_PORT = -side). ValueError unless side is -1 or +1."""
+    port = -float(Side(side))
     return np.array([math.cos(math.radians(cfg.los_half_angle_deg)), cfg.los_apex_radius_km,
-                     cfg.gamma1_km, cfg.gamma2_per_s, cfg.gamma3_kmps, u_max, -float(side)])
+                     cfg.gamma1_km, cfg.gamma2_per_s, cfg.gamma3_kmps, u_max, port])
 
 
 @nb.njit(cache=True, inline="always")
@@ -114,9 +114,9 @@ class Margins(NamedTuple):
 
 
 def margins(x_d: ArrayLike, x_c: ArrayLike, u: ArrayLike, cfg: ConstraintConfig, u_max: float,
-            side: int = -1) -> Margins:
+            side: Side) -> Margins:
     """h1, normalised h1, h2, h3 for deputy states (N, 6), chief states (N, 6), accelerations
-    (N, 3), approach side ``side`` (-1 behind, +1 ahead)."""
+    (N, 3) of a mission approaching from ``side`` (the docking port's side in h1)."""
     x_d = np.ascontiguousarray(np.atleast_2d(x_d), dtype=float)
     x_c = np.ascontiguousarray(np.broadcast_to(np.atleast_2d(np.asarray(x_c, dtype=float)), x_d.shape))
     u = np.ascontiguousarray(np.broadcast_to(np.atleast_2d(np.asarray(u, dtype=float)), x_d.shape[:-1] + (3,)))
@@ -125,14 +125,15 @@ def margins(x_d: ArrayLike, x_c: ArrayLike, u: ArrayLike, cfg: ConstraintConfig,
     return Margins(*out.T.copy())
 
 
-def h1_line_of_sight(x_d: ArrayLike, x_c: ArrayLike, cfg: ConstraintConfig, side: int = -1) -> NDArray:
+def h1_line_of_sight(x_d: ArrayLike, x_c: ArrayLike, cfg: ConstraintConfig, side: Side) -> NDArray:
     """h1 (km^2/s) for states (N, 6), approach side ``side``; NaN within the apex radius."""
     return margins(x_d, x_c, np.zeros(3), cfg, 1.0, side).h1
 
 
 def h3_approach_velocity(x_d: ArrayLike, x_c: ArrayLike, cfg: ConstraintConfig) -> NDArray:
-    """h3 (km/s) for states (N, 6); NaN beyond gamma1."""
-    return margins(x_d, x_c, np.zeros(3), cfg, 1.0).h3
+    """h3 (km/s) for states (N, 6); NaN beyond gamma1. h3 does not depend on the approach side
+    (either side packs the same gammas)."""
+    return margins(x_d, x_c, np.zeros(3), cfg, 1.0, Side.BEHIND).h3
 
 
 def h2_thrust(u: ArrayLike, u_max: float) -> NDArray:

@@ -16,11 +16,17 @@ C_XY = max_m |X Phi^m Y|_2 / lam^m the position and velocity errors obey the sca
     sigma_{j+1} = lam sigma_j + C_vp b_p + C_vv b_v + C_ve eta_j
 
 from rho_0 = C0_pp b_p + C0_pv b_v (sigma_0 likewise): the tube radii that robust Verify carries
-along its rollout (:func:`cikan_ros.tsg.rollout_kernel`). Here "p" rows are the position block,
-"v" the velocity block; the forcing columns are B_d K restricted to position or velocity errors
-(navigation) and B_d (accelerations). E_XY = max_m |X Phi^m Y| (the nominal loop, M = I, not
-divided by lam^m) bounds how far the prediction's own transient carries it from the virtual
-target after the terminal set (robust Verify's terminal ball, docs/robustness.md).
+along its rollout. Here "p" rows are the position block, "v" the velocity block; the forcing
+columns are B_d K restricted to position or velocity errors (navigation) and B_d
+(accelerations). E_XY = max_m |X Phi^m Y| (the nominal loop, M = I, not divided by lam^m) bounds
+how far the prediction's own transient carries it from the virtual target after the terminal set
+(robust Verify's terminal ball, docs/robustness.md).
+
+This module computes the constants and packs them with the declared bounds
+(:func:`robust_params`, layout ``R_*``), and holds the compiled kernels Verify's rollout
+(:func:`cikan_ros.tsg.rollout_kernel`) calls when ``R_ON`` is set: the tube's start, its step
+from one sample to the next, the tightened h1 and h3 checks on the ball around the prediction,
+and the robust terminal test.
 """
 
 from __future__ import annotations
@@ -28,10 +34,13 @@ from __future__ import annotations
 import functools
 import math
 
+import numba as nb
 import numpy as np
 from numpy.typing import NDArray
 
 from .config import Config, ControlConfig, TruthConfig, control_config, prediction_gravity
+from .constraints import (C_APEX, C_COS_ALPHA, C_GAMMA1, C_GAMMA2, C_GAMMA3, C_PORT, C_UMAX, los_terms_kernel,
+                          rel_norms_kernel)
 from .control import B_INPUT, gain_table, zoh_discretise
 from .dynamics import J2_EARTH, R_EARTH_KM, linearisation
 from .errors import ConfigError
@@ -183,6 +192,193 @@ def robust_params(cfg: Config, orbit: KeplerOrbit) -> NDArray:
         rp[R_KG] = j2_gradient_bound(r_min, orbit.mu)
     rp.setflags(write=False)
     return rp
+
+
+# -- kernels: robust Verify's checks and tube, called along the rollout (cikan_ros.tsg) ----------
+
+@nb.njit(cache=True)
+def robust_h1_ok(x: NDArray, xc: NDArray, cp: NDArray, sin_a: float, rho: float) -> bool:
+    """Every position within rho (km) of x lies in the LoS cone or inside the apex radius:
+    the distance of p = x - x_c to the cone's surface, |p| sin(alpha - theta), is >= rho
+    (theta: angle between p and the port's axis, -v_c behind, +v_c ahead); positions within
+    apex - rho need no check."""
+    dot, pn, vn = los_terms_kernel(x, xc, cp[C_PORT])
+    if pn <= cp[C_APEX] - rho:
+        return True
+    if pn == 0.0:
+        return False
+    c = -dot / (vn * pn)          # cos(theta)
+    s = math.sqrt(max(0.0, 1.0 - c * c))
+    return pn * (sin_a * c - cp[C_COS_ALPHA] * s) >= rho
+
+
+@nb.njit(cache=True)
+def robust_h3_ok(x: NDArray, xc: NDArray, cp: NDArray, rho: float, sig: float) -> bool:
+    """h3 holds for every state within rho (km) and sigma (km/s) of x (h3 is active wherever
+    |p| <= gamma1 may hold: |p| - rho <= gamma1)."""
+    pn, vn = rel_norms_kernel(x, xc)
+    lo = max(0.0, pn - rho)
+    if lo > cp[C_GAMMA1]:
+        return True
+    return vn + sig - cp[C_GAMMA2] * lo - cp[C_GAMMA3] <= 0.0
+
+
+@nb.njit(cache=True)
+def nav_terms(rp: NDArray, rng: float, vrel: float, ts: float) -> tuple[float, float, float, float]:
+    """Navigation error bounds b_p (km), b_v (km/s) at range rng (km) and the bounds of their
+    change over one sample, Delta_p, Delta_v (the error's rate bound plus the change of the
+    bound with the range, at most (vrel) ts)."""
+    bp = rp[R_NPF] + rp[R_NPG] * rng
+    bv = rp[R_NVF] + rp[R_NVG] * rng
+    k = min(2.0, rp[R_NRATE] * ts)
+    return bp, bv, k * bp + rp[R_NPG] * vrel * ts, k * bv + rp[R_NVG] * vrel * ts
+
+
+@nb.njit(cache=True)
+def loop_takes_over(rp: NDArray, big_r: float, big_s: float) -> tuple[float, float]:
+    """The bounds (km, km/s) of a transient R, S held through a saturated phase, once the linear
+    loop takes it over: C0 (R, S), the loop's gain from an initial error (:func:`tube_constants`)."""
+    return (rp[R_C0PP] * big_r + rp[R_C0PV] * big_s, rp[R_C0VP] * big_r + rp[R_C0VV] * big_s)
+
+
+@nb.njit(cache=True)
+def tube_step(rp: NDArray, u_max: float, ts: float, rng: float, vrel: float, rho: float,
+              sig: float, big_r: float, big_s: float, linear: bool, a_n: float, un: float,
+              grad: float) -> tuple[float, float, float, float, bool]:
+    """The tube from sample j to j + 1: (rho, sigma, R, S, linear) after the step.
+
+    rho, sigma bound the position (km) and velocity (km/s) error at j; rng, vrel are the
+    predicted range (km) and relative speed (km/s), a_n the unsaturated and un the saturated
+    command magnitude (km/s^2), grad the gravity gradient's bound in the tube (1/s^2);
+    m = |K_p| (rho + b_p) + |K_v| (sigma + b_v) bounds how far the command of a state in the
+    tube may differ from the prediction's.
+    - Not every state of the tube saturates (a_n - m < u_max): the closed loop flown with the
+      thruster map M, Phi_M = A - B M K (lam and the constants are the worst over M). The error is
+      the navigation error's DC response G (b_p, b_v) plus a transient R, S that decays like
+      lam^m: R' = lam R + D (Delta_p, Delta_v) + C_e eta, entered through the C0 constants; and
+      never more than the open double integrator with |Delta u| <= 2 u_max allows.
+    - Every state saturates: the feedback acts only across the thrust
+      direction, with the gain u_max / |a| <= 1 (the projection onto the thrust ball), and not
+      along it; the error is then propagated as an open double integrator (that feedback taken
+      as no help) under the unknown accelerations, the command error the navigation error
+      causes, (|K_p| b_p + |K_v| b_v) u_max / max(a_n - m, u_max), and the gravity gradient's
+      bound g rho.
+    docs/robustness.md states which of these steps are bounds and which approximations.
+    """
+    rr = rng + rho
+    bp, bv, dp, dv = nav_terms(rp, rr, vrel + sig, ts)
+    # The truth's command differs from the prediction's by K (e + delta): the transient R, S,
+    # what of the navigation error does not cancel against its own offset ((I - G) delta), and
+    # the error's last change.
+    m = rp[R_KP] * (big_r + rp[R_HPP] * bp + rp[R_HPV] * bv + dp) \
+        + rp[R_KV] * (big_s + rp[R_HVP] * bp + rp[R_HVV] * bv + dv)
+    # The thruster error of the predicted command (the part proportional to the tube's own
+    # command error is in the loop Phi_M = A - B M K of the tube constants).
+    eta = rp[R_EPSU] * un + rp[R_DMAX] + rp[R_KG] * rr
+    offset_p = rp[R_GPP] * bp + rp[R_GPV] * bv
+    offset_v = rp[R_GVP] * bp + rp[R_GVV] * bv
+    if a_n - m < u_max:
+        if not linear:  # R, S held the transient of the saturated phase: it now decays
+            big_r, big_s = loop_takes_over(rp, big_r, big_s)
+        lam = rp[R_LAM]
+        big_r = lam * big_r + rp[R_DPP] * dp + rp[R_DPV] * dv + rp[R_CPE] * eta
+        big_s = lam * big_s + rp[R_DVP] * dp + rp[R_DVV] * dv + rp[R_CVE] * eta
+        # Whatever the loop does, the commands differ by at most 2 u_max: the open double
+        # integrator bounds the error too, and is the smaller bound while the tube is wide.
+        du = 2.0 * u_max + eta + grad * rho
+        cap_p = rho + ts * sig + 0.5 * ts * ts * du
+        cap_v = sig + ts * du
+        # the transient part is at most the whole error plus the offset's response
+        big_r = min(big_r, cap_p + offset_p)
+        big_s = min(big_s, cap_v + offset_v)
+        return min(big_r + offset_p, cap_p), min(big_s + offset_v, cap_v), big_r, big_s, True
+    # Saturated: a constant navigation error only displaces the target the deputy flies to
+    # (the offset G b, as in the linear loop); its change per sample turns the thrust.
+    du = u_max * (rp[R_KP] * dp + rp[R_KV] * dv) / (a_n - m) + eta + grad * rho
+    big_r = big_r + ts * big_s + 0.5 * ts * ts * du
+    big_s = big_s + ts * du
+    return big_r + offset_p, big_s + offset_v, big_r, big_s, False
+
+
+@nb.njit(cache=True)
+def robust_terminal_ok(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, dp: float, dv: float,
+                       big_r: float, big_s: float, linear: bool, ts: float) -> bool:
+    """The robust terminal test, once the prediction is in the nominal terminal set (dp, dv
+    from the virtual target x_v). The prediction does not stop there: the FTRE loop carries it
+    on along its transient, by at most P = E_pp dp + E_pv dv in position and V = E_vp dp + E_vv dv
+    in velocity from x_v (E_XY = max_m |X Phi^m Y|, the nominal loop; a low-gain loop with
+    0.1 m/s left coasts for metres), as long as that transient's command, at most
+    |K_p| P + |K_v| V, stays below u_max (else: not yet, the rollout goes on). The tube's
+    transient R, S (``big_r``, ``big_s``; held as the saturated phase's when not ``linear``)
+    then decays toward the fixed point R_inf, S_inf of its recursion, with the forcing and the
+    navigation offset G b bounded over the ball (the disturbance-invariant set of the tracking
+    loop), so the truth stays within P + max(R, R_inf) + G_p b and V + max(S, S_inf) + G_v b of
+    x_v, and that whole ball must satisfy h1 and h3 (docs/robustness.md, "terminal set")."""
+    big_p = rp[R_EPP] * dp + rp[R_EPV] * dv
+    big_v = rp[R_EVP] * dp + rp[R_EVV] * dv
+    un = rp[R_KP] * big_p + rp[R_KV] * big_v
+    if un >= cp[C_UMAX]:
+        return False
+    if not linear:  # the saturated phase's transient, as the loop takes it over (tube_step)
+        big_r, big_s = loop_takes_over(rp, big_r, big_s)
+    # The tube's radii bound the range and the relative speed of every future truth state; the
+    # offset's and the forcing's bounds there make R_inf and the offsets bounds as well.
+    rng = math.sqrt((xv[0] - xc[0]) ** 2 + (xv[1] - xc[1]) ** 2 + (xv[2] - xc[2]) ** 2)
+    vel = math.sqrt((xv[3] - xc[3]) ** 2 + (xv[4] - xc[4]) ** 2 + (xv[5] - xc[5]) ** 2)
+    gain = 1.0 / (1.0 - rp[R_LAM])
+    rho = big_r
+    sig = big_s
+    for _ in range(50):  # the radii enter their own range and speed bounds: to the fixed point
+        rr = rng + big_p + rho
+        bp, bv, d_p, d_v = nav_terms(rp, rr, vel + big_v + sig, ts)
+        eta = rp[R_EPSU] * un + rp[R_DMAX] + rp[R_KG] * rr
+        new_r = max(big_r, gain * (rp[R_DPP] * d_p + rp[R_DPV] * d_v + rp[R_CPE] * eta)) \
+            + rp[R_GPP] * bp + rp[R_GPV] * bv
+        new_s = max(big_s, gain * (rp[R_DVP] * d_p + rp[R_DVV] * d_v + rp[R_CVE] * eta)) \
+            + rp[R_GVP] * bp + rp[R_GVV] * bv
+        settled = new_r - rho <= 1e-12 and new_s - sig <= 1e-15  # 1 nm, 1 pm/s
+        rho, sig = new_r, new_s
+        if settled:
+            break
+    else:
+        return False  # no fixed point: the navigation error grows faster than the ball
+    return (robust_h1_ok(xv, xc, cp, rp[R_SINA], big_p + rho)
+            and robust_h3_ok(xv, xc, cp, big_p + rho, big_v + sig))
+
+@nb.njit(cache=True)
+def tube_start(rp: NDArray, rng: float) -> tuple[float, float, float, float]:
+    """The tube at sample 0, the measured state at range rng (km): off the truth by the
+    navigation error delta (|delta_p| <= b_p, |delta_v| <= b_v), whose transient is
+    -(I - G) delta. Returns (rho, sigma, R, S) in km and km/s."""
+    rho = rp[R_NPF] + rp[R_NPG] * rng
+    sig = rp[R_NVF] + rp[R_NVG] * rng
+    big_r = rp[R_HPP] * rho + rp[R_HPV] * sig
+    big_s = rp[R_HVP] * rho + rp[R_HVV] * sig
+    return rho, sig, big_r, big_s
+
+
+@nb.njit(cache=True)
+def tube_ok(x: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, rho: float, sig: float) -> bool:
+    """h1 and h3 hold on the whole tube around the predicted deputy x (chief xc, both (6,)):
+    every state within rho (km) and sigma (km/s) of x."""
+    if not robust_h1_ok(x, xc, cp, rp[R_SINA], rho):
+        return False
+    return robust_h3_ok(x, xc, cp, rho, sig)
+
+
+@nb.njit(cache=True)
+def tube_next(rp: NDArray, u_max: float, ts: float, x: NDArray, xc: NDArray, u: NDArray, a_n: float,
+              rng: float, rho: float, sig: float, big_r: float, big_s: float, linear: bool
+              ) -> tuple[float, float, float, float, bool]:
+    """The tube at sample j + 1 around the predicted deputy x (range rng, km) of chief xc, with
+    the saturated command u and its unsaturated magnitude a_n (km/s^2): :func:`tube_step` with
+    the relative speed, |u| and the gravity gradient's bound at the lowest radius the tube
+    reaches (not below 6000 km)."""
+    vrel = math.sqrt((x[3] - xc[3]) ** 2 + (x[4] - xc[4]) ** 2 + (x[5] - xc[5]) ** 2)
+    r_low = math.sqrt(xc[0] * xc[0] + xc[1] * xc[1] + xc[2] * xc[2]) - rng - rho
+    return tube_step(rp, u_max, ts, rng, vrel, rho, sig, big_r, big_s, linear, a_n,
+                     math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]),
+                     rp[R_GRAD] / max(r_low, 6000.0) ** 3)
 
 
 def gain_margin(orbit: KeplerOrbit, cfg: ControlConfig, tol: float = 1e-4) -> float:

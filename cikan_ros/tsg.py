@@ -18,7 +18,8 @@ measured state and carries two scalar tube radii along it, rho_j (position, km) 
 FTRE law. Each constraint is then checked on the whole ball around the predicted state: h1 as the
 distance of the predicted position to the cone's surface, |p| sin(alpha - theta) >= rho_j; h3 with
 |v| + sigma_j and |p| - rho_j; at the terminal set, on the ball the truth can reach afterwards
-(the loop's own transient from there plus the tube's invariant set, :func:`robust_terminal_ok`).
+(the loop's own transient from there plus the tube's invariant set). The tube's kernels live in
+:mod:`cikan_ros.robust`, beside the constants they use; the rollout here calls them.
 With every bound 0 the tubes are 0 and robust Verify answers as nominal Verify, but for that
 terminal ball: the transient it lets go must keep h1 and h3 too.
 
@@ -37,9 +38,8 @@ import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .config import Config, control_config, prediction_gravity
-from .constraints import (C_APEX, C_COS_ALPHA, C_GAMMA1, C_GAMMA2, C_GAMMA3, C_PORT, C_UMAX, constraint_params,
-                          los_terms_kernel, rel_norms_kernel, h1_line_of_sight_kernel, h2_thrust_kernel,
+from .config import Config, Side, control_config, prediction_gravity
+from .constraints import (C_UMAX, constraint_params, h1_line_of_sight_kernel, h2_thrust_kernel,
                           h3_approach_velocity_kernel)
 from .control import ftre_control_kernel, gain_table
 from .dynamics import j2_coefficient, rk4_kernel
@@ -47,11 +47,7 @@ from .errors import NoFeasibleShiftError, StateError
 from .orbit import (N_PARAMS, P_E, P_M0, P_MU, P_N, KeplerOrbit, check_states,
                     eccentric_anomaly_kernel, osculating_params_kernel, state_from_anomaly_kernel,
                     state_kernel, state_warm_kernel)
-from .robust import (R_C0PP, R_C0PV, R_C0VP, R_C0VV, R_CPE, R_CVE, R_DPP, R_DPV, R_DVP, R_DVV,
-                     R_EPP, R_EPV, R_EVP, R_EVV, R_GPP, R_GPV, R_GVP, R_GVV, R_HPP, R_HPV, R_HVP,
-                     R_HVV, R_NRATE,
-                     R_DMAX, R_EPSU, R_GRAD, R_KG, R_KP, R_KV, R_LAM, R_NPF, R_NPG, R_NVF, R_NVG, R_ON,
-                     R_SINA, R_ZETA, robust_params)
+from .robust import R_ON, R_ZETA, robust_params, robust_terminal_ok, tube_next, tube_ok, tube_start
 from .units import ns_to_seconds
 from .units import seconds_to_ns as to_ns
 
@@ -108,155 +104,6 @@ def verify_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: ND
 
 
 @nb.njit(cache=True)
-def robust_h1_ok(x: NDArray, xc: NDArray, cp: NDArray, sin_a: float, rho: float) -> bool:
-    """Every position within rho (km) of x lies in the LoS cone or inside the apex radius:
-    the distance of p = x - x_c to the cone's surface, |p| sin(alpha - theta), is >= rho
-    (theta: angle between p and the port's axis, -v_c behind, +v_c ahead); positions within
-    apex - rho need no check."""
-    dot, pn, vn = los_terms_kernel(x, xc, cp[C_PORT])
-    if pn <= cp[C_APEX] - rho:
-        return True
-    if pn == 0.0:
-        return False
-    c = -dot / (vn * pn)          # cos(theta)
-    s = math.sqrt(max(0.0, 1.0 - c * c))
-    return pn * (sin_a * c - cp[C_COS_ALPHA] * s) >= rho
-
-
-@nb.njit(cache=True)
-def robust_h3_ok(x: NDArray, xc: NDArray, cp: NDArray, rho: float, sig: float) -> bool:
-    """h3 holds for every state within rho (km) and sigma (km/s) of x (h3 is active wherever
-    |p| <= gamma1 may hold: |p| - rho <= gamma1)."""
-    pn, vn = rel_norms_kernel(x, xc)
-    lo = max(0.0, pn - rho)
-    if lo > cp[C_GAMMA1]:
-        return True
-    return vn + sig - cp[C_GAMMA2] * lo - cp[C_GAMMA3] <= 0.0
-
-
-@nb.njit(cache=True)
-def nav_terms(rp: NDArray, rng: float, vrel: float, ts: float) -> tuple[float, float, float, float]:
-    """Navigation error bounds b_p (km), b_v (km/s) at range rng (km) and the bounds of their
-    change over one sample, Delta_p, Delta_v (the error's rate bound plus the change of the
-    bound with the range, at most (vrel) ts)."""
-    bp = rp[R_NPF] + rp[R_NPG] * rng
-    bv = rp[R_NVF] + rp[R_NVG] * rng
-    k = min(2.0, rp[R_NRATE] * ts)
-    return bp, bv, k * bp + rp[R_NPG] * vrel * ts, k * bv + rp[R_NVG] * vrel * ts
-
-
-@nb.njit(cache=True)
-def loop_takes_over(rp: NDArray, big_r: float, big_s: float) -> tuple[float, float]:
-    """The bounds (km, km/s) of a transient R, S held through a saturated phase, once the linear
-    loop takes it over: C0 (R, S), the loop's gain from an initial error (cikan_ros.robust)."""
-    return (rp[R_C0PP] * big_r + rp[R_C0PV] * big_s, rp[R_C0VP] * big_r + rp[R_C0VV] * big_s)
-
-
-@nb.njit(cache=True)
-def tube_step(rp: NDArray, u_max: float, ts: float, rng: float, vrel: float, rho: float,
-              sig: float, big_r: float, big_s: float, linear: bool, a_n: float, un: float,
-              grad: float) -> tuple[float, float, float, float, bool]:
-    """The tube from sample j to j + 1: (rho, sigma, R, S, linear) after the step.
-
-    rho, sigma bound the position (km) and velocity (km/s) error at j; rng, vrel are the
-    predicted range (km) and relative speed (km/s), a_n the unsaturated and un the saturated
-    command magnitude (km/s^2), grad the gravity gradient's bound in the tube (1/s^2); m = |K_p| (rho + b_p) + |K_v| (sigma + b_v) bounds how far the
-    command of a state in the tube may differ from the prediction's.
-    - Not every state of the tube saturates (a_n - m < u_max): the closed loop flown with the
-      thruster map M, Phi_M = A - B M K (lam and the constants are the worst over M). The error is
-      the navigation error's DC response G (b_p, b_v) plus a transient R, S that decays like
-      lam^m: R' = lam R + D (Delta_p, Delta_v) + C_e eta, entered through the C0 constants; and
-      never more than the open double integrator with |Delta u| <= 2 u_max allows.
-    - Every state saturates: the feedback acts only across the thrust
-      direction, with the gain u_max / |a| <= 1 (the projection onto the thrust ball), and not
-      along it; the error is then propagated as an open double integrator (that feedback taken
-      as no help) under the unknown accelerations, the command error the navigation error
-      causes, (|K_p| b_p + |K_v| b_v) u_max / max(a_n - m, u_max), and the gravity gradient's
-      bound g rho.
-    docs/robustness.md states which of these steps are bounds and which approximations.
-    """
-    rr = rng + rho
-    bp, bv, dp, dv = nav_terms(rp, rr, vrel + sig, ts)
-    # The truth's command differs from the prediction's by K (e + delta): the transient R, S,
-    # what of the navigation error does not cancel against its own offset ((I - G) delta), and
-    # the error's last change.
-    m = rp[R_KP] * (big_r + rp[R_HPP] * bp + rp[R_HPV] * bv + dp) \
-        + rp[R_KV] * (big_s + rp[R_HVP] * bp + rp[R_HVV] * bv + dv)
-    # The thruster error of the predicted command (the part proportional to the tube's own
-    # command error is in the loop Phi_M = A - B M K of the tube constants).
-    eta = rp[R_EPSU] * un + rp[R_DMAX] + rp[R_KG] * rr
-    offset_p = rp[R_GPP] * bp + rp[R_GPV] * bv
-    offset_v = rp[R_GVP] * bp + rp[R_GVV] * bv
-    if a_n - m < u_max:
-        if not linear:  # R, S held the transient of the saturated phase: it now decays
-            big_r, big_s = loop_takes_over(rp, big_r, big_s)
-        lam = rp[R_LAM]
-        big_r = lam * big_r + rp[R_DPP] * dp + rp[R_DPV] * dv + rp[R_CPE] * eta
-        big_s = lam * big_s + rp[R_DVP] * dp + rp[R_DVV] * dv + rp[R_CVE] * eta
-        # Whatever the loop does, the commands differ by at most 2 u_max: the open double
-        # integrator bounds the error too, and is the smaller bound while the tube is wide.
-        du = 2.0 * u_max + eta + grad * rho
-        cap_p = rho + ts * sig + 0.5 * ts * ts * du
-        cap_v = sig + ts * du
-        # the transient part is at most the whole error plus the offset's response
-        big_r = min(big_r, cap_p + offset_p)
-        big_s = min(big_s, cap_v + offset_v)
-        return min(big_r + offset_p, cap_p), min(big_s + offset_v, cap_v), big_r, big_s, True
-    # Saturated: a constant navigation error only displaces the target the deputy flies to
-    # (the offset G b, as in the linear loop); its change per sample turns the thrust.
-    du = u_max * (rp[R_KP] * dp + rp[R_KV] * dv) / (a_n - m) + eta + grad * rho
-    big_r = big_r + ts * big_s + 0.5 * ts * ts * du
-    big_s = big_s + ts * du
-    return big_r + offset_p, big_s + offset_v, big_r, big_s, False
-
-
-@nb.njit(cache=True)
-def robust_terminal_ok(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, dp: float, dv: float,
-                       big_r: float, big_s: float, linear: bool, ts: float) -> bool:
-    """The robust terminal test, once the prediction is in the nominal terminal set (dp, dv
-    from the virtual target x_v). The prediction does not stop there: the FTRE loop carries it
-    on along its transient, by at most P = E_pp dp + E_pv dv in position and V = E_vp dp + E_vv dv
-    in velocity from x_v (E_XY = max_m |X Phi^m Y|, the nominal loop; a low-gain loop with
-    0.1 m/s left coasts for metres), as long as that transient's command, at most
-    |K_p| P + |K_v| V, stays below u_max (else: not yet, the rollout goes on). The tube's
-    transient R, S (``big_r``, ``big_s``; held as the saturated phase's when not ``linear``)
-    then decays toward the fixed point R_inf, S_inf of its recursion, with the forcing and the
-    navigation offset G b bounded over the ball (the disturbance-invariant set of the tracking
-    loop), so the truth stays within P + max(R, R_inf) + G_p b and V + max(S, S_inf) + G_v b of
-    x_v, and that whole ball must satisfy h1 and h3 (docs/robustness.md, "terminal set")."""
-    big_p = rp[R_EPP] * dp + rp[R_EPV] * dv
-    big_v = rp[R_EVP] * dp + rp[R_EVV] * dv
-    un = rp[R_KP] * big_p + rp[R_KV] * big_v
-    if un >= cp[C_UMAX]:
-        return False
-    if not linear:  # the saturated phase's transient, as the loop takes it over (tube_step)
-        big_r, big_s = loop_takes_over(rp, big_r, big_s)
-    # The tube's radii bound the range and the relative speed of every future truth state; the
-    # offset's and the forcing's bounds there make R_inf and the offsets bounds as well.
-    rng = math.sqrt((xv[0] - xc[0]) ** 2 + (xv[1] - xc[1]) ** 2 + (xv[2] - xc[2]) ** 2)
-    vel = math.sqrt((xv[3] - xc[3]) ** 2 + (xv[4] - xc[4]) ** 2 + (xv[5] - xc[5]) ** 2)
-    gain = 1.0 / (1.0 - rp[R_LAM])
-    rho = big_r
-    sig = big_s
-    for _ in range(50):  # the radii enter their own range and speed bounds: to the fixed point
-        rr = rng + big_p + rho
-        bp, bv, d_p, d_v = nav_terms(rp, rr, vel + big_v + sig, ts)
-        eta = rp[R_EPSU] * un + rp[R_DMAX] + rp[R_KG] * rr
-        new_r = max(big_r, gain * (rp[R_DPP] * d_p + rp[R_DPV] * d_v + rp[R_CPE] * eta)) \
-            + rp[R_GPP] * bp + rp[R_GPV] * bv
-        new_s = max(big_s, gain * (rp[R_DVP] * d_p + rp[R_DVV] * d_v + rp[R_CVE] * eta)) \
-            + rp[R_GVP] * bp + rp[R_GVV] * bv
-        settled = new_r - rho <= 1e-12 and new_s - sig <= 1e-15  # 1 nm, 1 pm/s
-        rho, sig = new_r, new_s
-        if settled:
-            break
-    else:
-        return False  # no fixed point: the navigation error grows faster than the ball
-    return (robust_h1_ok(xv, xc, cp, rp[R_SINA], big_p + rho)
-            and robust_h3_ok(xv, xc, cp, big_p + rho, big_v + sig))
-
-
-@nb.njit(cache=True)
 def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: NDArray,
                    x0: NDArray, t_k: float, tau: float, chief: NDArray, chief_t0: float) -> bool:
     """One prediction: Verify(x0, t_k, tau) for a single shift.
@@ -265,7 +112,7 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
     rounding; see :class:`ChiefCache`) and their eccentric anomalies, which do not depend on tau:
     a row whose anomaly is NaN is computed on first use and reused by every later Verify.
     With ``rp[R_ON]`` the constraints and the terminal set are checked on the tube around the
-    prediction (module docstring).
+    prediction (module docstring; the tube's kernels are in :mod:`cikan_ros.robust`).
     """
     ts = tp[T_SAMPLE]
     n = int(tp[T_NSAMPLES])
@@ -295,14 +142,9 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
                 chief_row_kernel(orb, chief_t0 + j * ts, xc)
         if robust:
             rng = math.sqrt((x[0] - xc[0]) ** 2 + (x[1] - xc[1]) ** 2 + (x[2] - xc[2]) ** 2)
-            if j == 0:  # the measured state: off the truth by the navigation error, delta;
-                rho = rp[R_NPF] + rp[R_NPG] * rng  # its transient is -(I - G) delta
-                sig = rp[R_NVF] + rp[R_NVG] * rng
-                big_r = rp[R_HPP] * rho + rp[R_HPV] * sig
-                big_s = rp[R_HVP] * rho + rp[R_HVV] * sig
-            if not robust_h1_ok(x, xc, cp, rp[R_SINA], rho):
-                return False
-            if not robust_h3_ok(x, xc, cp, rho, sig):
+            if j == 0:  # the measured state
+                rho, sig, big_r, big_s = tube_start(rp, rng)
+            if not tube_ok(x, xc, cp, rp, rho, sig):
                 return False
         else:
             if h1_line_of_sight_kernel(x, xc, cp) > 0.0:
@@ -336,12 +178,8 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
         if h2_thrust_kernel(u, cp) > 1e-12 * u_max:
             return False
         if robust:  # the tube at sample j + 1 (cikan_ros.robust, docs/robustness.md)
-            vrel = math.sqrt((x[3] - xc[3]) ** 2 + (x[4] - xc[4]) ** 2 + (x[5] - xc[5]) ** 2)
-            r_low = math.sqrt(xc[0] * xc[0] + xc[1] * xc[1] + xc[2] * xc[2]) - rng - rho
-            rho, sig, big_r, big_s, linear = tube_step(
-                rp, u_max, ts, rng, vrel, rho, sig, big_r, big_s, linear, a_n,
-                math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]),
-                rp[R_GRAD] / max(r_low, 6000.0) ** 3)
+            rho, sig, big_r, big_s, linear = tube_next(rp, u_max, ts, x, xc, u, a_n, rng, rho, sig,
+                                                       big_r, big_s, linear)
         rk4_kernel(x, u, ts, sub, mu, x, j2r2)
     return False
 
@@ -550,7 +388,7 @@ class Predictor:
         """This model with nominal Verify (robustness off, and so the nominal controller and
         prediction model), for the same chief orbit: what decides which starts a campaign
         flies, so nominal and robust Verify fly the same starts."""
-        if not self.rparams[R_ON]:
+        if not self.robust:
             return self
         return Predictor.from_config(self.config.replace(**{"tsg.robust": False})).with_orbit(self.orbit)
 
@@ -564,9 +402,17 @@ class Predictor:
         return new
 
     @property
-    def side(self) -> int:
-        """Sign of the shifts: -1 behind the chief (tau <= 0), +1 ahead (tau >= 0)."""
-        return -1 if self.cparams[C_PORT] > 0.0 else 1
+    def side(self) -> Side:
+        """The approach side, the sign of the shifts: BEHIND (-1, tau <= 0) or AHEAD (+1,
+        tau >= 0); the configuration's (the port in ``cparams`` was packed from it)."""
+        return self.config.side
+
+    @property
+    def robust(self) -> bool:
+        """Is Verify robust (``tsg.robust``; the kernels read the flag ``R_ON`` that
+        :func:`~cikan_ros.robust.robust_params` packed from it)? Every Python-side question
+        about robustness asks this."""
+        return self.config.tsg.robust
 
     @property
     def tol_ns(self) -> int:
@@ -710,11 +556,11 @@ class Predictor:
         tau, calls, found = initial_search_kernel(self.orbit.params, self.gains, self.cparams,
                                                   self.tparams, self.rparams, x, t, to_ns(cfg.initial_window_s),
                                                   to_ns(cfg.initial_grid_s), self.tol_ns, c.rows, c.t0,
-                                                  self.side)
+                                                  int(self.side))
         if not found:
             truth = self.config.truth
             under = (f" under robust Verify with the bounds of truth {truth.name!r} x {truth.scale:g}"
-                     if self.rparams[R_ON] else "")
+                     if self.robust else "")
             window = f"[-{cfg.initial_window_s:g}, 0]" if self.side < 0 else f"[0, {cfg.initial_window_s:g}]"
             raise NoFeasibleShiftError(
                 f"no feasible time shift in {window} s for this initial "

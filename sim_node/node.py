@@ -162,7 +162,7 @@ class SimNode(Node):
             (self.latency_update_ms if decision else self.latency_ms).append(ms)
         u = self.truth.applied_thrust(u)  # through the thrusters: the acceleration as applied
         self.pub_truth_accel.publish(cv.accel_msg(u, self.stamp()))
-        m = margins(self.x, self.x_c, u, self.cfg.constraints, self.u_limit)
+        m = margins(self.x, self.x_c, u, self.cfg.constraints, self.u_limit, self.cfg.side)
         level = "ok" if source == "command" else "warn"
         text = "step" if source == "command" else "controller missed its deadline: zero thrust"
         self.pub_diag.publish(cv.diagnostic(NAME, level, text, self.stamp(), {
@@ -189,7 +189,7 @@ class SimNode(Node):
 
     def finish(self) -> None:
         wall = time.perf_counter() - self.wall0
-        m = margins(self.x, self.x_c, np.zeros(3), self.cfg.constraints, self.u_limit)
+        m = margins(self.x, self.x_c, np.zeros(3), self.cfg.constraints, self.u_limit, self.cfg.side)
         steady = np.array(self.latency_ms)  # steps where the governor only holds tau
         sim_s = self.k * self.cfg.control.period_s
         values = {"k": self.k, "event": "complete", "steps": self.k, "wall_s": wall,

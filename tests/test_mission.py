@@ -49,7 +49,7 @@ def test_metrics_match_independent_formulas(cfg, nominal):
     assert m["tau0_s"] == nominal.tau[0]
     first_zero = nominal.t[np.argmax(nominal.tau == 0.0)]
     assert m["t_tau_zero_s"] == first_zero
-    mm = margins(nominal.x_d, nominal.x_c, nominal.u, cfg.constraints, 5e-4)
+    mm = margins(nominal.x_d, nominal.x_c, nominal.u, cfg.constraints, 5e-4, cfg.side)
     assert m["min_h1_margin"] == pytest.approx(-np.nanmax(mm.h1_normalised), rel=1e-12)
     assert m["updates"] == 14400 // 60 - 1
     assert m["update_ms_max"] >= m["update_ms_mean"] > 0
@@ -72,7 +72,7 @@ def test_sampler_is_deterministic_and_admissible(cfg, predictor):
     np.testing.assert_array_equal(a, b)
     assert not np.array_equal(a, sample_start(predictor, 8))
     x_c = predictor.orbit.state(0.0)
-    assert margins(a, x_c, np.zeros(3), cfg.constraints, 5e-4).h1[0] <= 0
+    assert margins(a, x_c, np.zeros(3), cfg.constraints, 5e-4, cfg.side).h1[0] <= 0
     np.testing.assert_array_equal(a[3:], nominal_start(predictor)[3:])  # velocity as nominal
 
 

@@ -19,9 +19,9 @@ from cikan_ros.dynamics import J2_EARTH, R_EARTH_KM, j2_acceleration, linearisat
 from cikan_ros.governor import ConventionalGovernor
 from cikan_ros.mission import nominal_start, run_mission, sample_start
 from cikan_ros.orbit import KeplerOrbit
-from cikan_ros.robust import (UnstableLoopError, j2_gradient_bound, thrust_matrices,
-                              tube_constants)
-from cikan_ros.tsg import Predictor, robust_h1_ok, robust_terminal_ok
+from cikan_ros.robust import (UnstableLoopError, j2_gradient_bound, robust_h1_ok, robust_terminal_ok,
+                              thrust_matrices, tube_constants)
+from cikan_ros.tsg import Predictor
 
 MU = 398600.4418
 CFG = load_config()
@@ -51,7 +51,7 @@ def chief_at(nu: float) -> np.ndarray:
 @given(seed=st.integers(0, 2**31), nu=st.floats(0.0, 2 * math.pi), which=st.integers(0, 8))
 def test_tube_recursion_bounds_the_linear_error_system(seed, nu, which):
     """e' = Phi_M e - B M K delta + B eta with |delta_p| <= b_p, |delta_v| <= b_v changing by at
-    most Delta per step and |eta| <= h: the recursion of cikan_ros.tsg.tube_step (linear branch)
+    most Delta per step and |eta| <= h: the recursion of cikan_ros.robust.tube_step (linear branch)
     bounds |P e_j| and |V e_j| along a random admissible sequence."""
     bias, point = 0.02, math.radians(1.0)
     c = tube_constants(ORBIT, CFG.control, bias, point)
@@ -97,7 +97,7 @@ def test_thruster_errors_beyond_the_gain_margin_are_refused():
 def test_robust_h1_holds_on_the_whole_ball(theta, rng_km, rho_frac, seed):
     """If robust_h1_ok(x, rho), every point within rho of x satisfies h1 <= 0 (or lies within
     the apex radius): the cone's surface is rho or more away."""
-    cp = constraint_params(CFG.constraints, CFG.control.u_max_kmps2)
+    cp = constraint_params(CFG.constraints, CFG.control.u_max_kmps2, CFG.side)
     x_c = ORBIT.state(0.0)
     axis = -x_c[3:] / np.linalg.norm(x_c[3:])
     perp = np.cross(axis, [0.0, 0.0, 1.0])

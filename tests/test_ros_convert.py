@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from rclpy.serialization import deserialize_message, serialize_message
 
-from cikan_ros.config import load_config
+from cikan_ros.config import Side, load_config
 from cikan_ros.errors import ConfigError
 from cikan_ros.ros import convert as cv
 from cikan_ros.ros.bag import BagWriter, qos_dict, schema_text, type_hash
@@ -72,14 +72,19 @@ def test_acceleration_round_trip_and_limits() -> None:
 def test_time_shift_crosses_exactly() -> None:
     stamp = 1735689600 * 10**9 + 60 * 10**9
     for tau in (-7.564323426, -1e-9, 0.0, -599.999999999):
-        got_stamp, got_tau, source = cv.shift_from_msg(cv.time_shift_msg(stamp, tau, "bisect"))
+        got_stamp, got_tau, source = cv.shift_from_msg(cv.time_shift_msg(stamp, tau, "bisect"), Side.BEHIND)
         assert (got_stamp, got_tau, source) == (stamp, tau, "bisect")
+        assert cv.shift_from_msg(cv.time_shift_msg(stamp, -tau, "nn"), Side.AHEAD) == (stamp, -tau, "nn")
     with pytest.raises(cv.MessageError, match="whole number of nanoseconds"):
         cv.time_shift_msg(stamp, -7.5643234261, "nn")
     msg = cv.time_shift_msg(stamp, 0.0, "x")
     msg.time_ref = cv.ns_to_time(stamp + 1)
-    with pytest.raises(cv.MessageError, match="<= 0"):
-        cv.shift_from_msg(msg)
+    with pytest.raises(cv.MessageError, match="<= 0 \\(mission.approach behind\\)"):
+        cv.shift_from_msg(msg, Side.BEHIND)
+    assert cv.shift_from_msg(msg, Side.AHEAD)[1] == 1e-9
+    msg.time_ref = cv.ns_to_time(stamp - 1)
+    with pytest.raises(cv.MessageError, match=">= 0 \\(mission.approach ahead\\)"):
+        cv.shift_from_msg(msg, Side.AHEAD)
 
 
 def test_diagnostic_values_round_trip_floats_exactly() -> None:

@@ -15,7 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cikan_ros.cli import main
-from cikan_ros.config import load_config, scenario_names, scenario_overrides
+from cikan_ros.config import Side, load_config, scenario_names, scenario_overrides
 from cikan_ros.constraints import h1_line_of_sight
 from cikan_ros.errors import ConfigError
 from cikan_ros.governor import ConventionalGovernor
@@ -80,10 +80,10 @@ def test_h1_port_faces_the_approach() -> None:
     behind[1] -= 2.0
     ahead = x_c.copy()
     ahead[1] += 2.0
-    assert h1_line_of_sight(behind, x_c, cfg.constraints, -1)[0] == pytest.approx(vn * 2 * (COS20 - 1))
-    assert h1_line_of_sight(behind, x_c, cfg.constraints, +1)[0] == pytest.approx(vn * 2 * (COS20 + 1))
-    assert h1_line_of_sight(ahead, x_c, cfg.constraints, +1)[0] == pytest.approx(vn * 2 * (COS20 - 1))
-    assert h1_line_of_sight(ahead, x_c, cfg.constraints, -1)[0] == pytest.approx(vn * 2 * (COS20 + 1))
+    assert h1_line_of_sight(behind, x_c, cfg.constraints, Side.BEHIND)[0] == pytest.approx(vn * 2 * (COS20 - 1))
+    assert h1_line_of_sight(behind, x_c, cfg.constraints, Side.AHEAD)[0] == pytest.approx(vn * 2 * (COS20 + 1))
+    assert h1_line_of_sight(ahead, x_c, cfg.constraints, Side.AHEAD)[0] == pytest.approx(vn * 2 * (COS20 - 1))
+    assert h1_line_of_sight(ahead, x_c, cfg.constraints, Side.BEHIND)[0] == pytest.approx(vn * 2 * (COS20 + 1))
 
 
 @pytest.fixture(scope="module")

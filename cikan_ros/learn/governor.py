@@ -23,7 +23,11 @@ than ρ |τ_prev| (ρ = learned.min_progress)::
 
 The trust (:class:`Trust`) and the stall rule wrap this: an untrusted network's updates are the
 conventional TSG's (path "search"), and after learned.stall_updates trusted updates in a row
-that held τ_prev the next one is too (path "stall"; docs/learned_update_rule.md).
+that held τ_prev the next one is too (path "stall"); the audit checks the answer and judges the
+network (path "audit"; docs/learned_update_rule.md). Under robust Verify, a scheduled update with
+|τ_prev| <= tsg.zero_snap_s probes with the conventional search, before the ladder. In the code
+(:meth:`LearnedGovernor._keep`) the steps are one method each, in this order: ``_search`` (the
+trust), ``_stall``, ``_ladder_step``, ``_probe``, ``_audit``, ``_judge``.
 
 The ladder exists because a failed Verify is cheap (it stops at the first violation) and the
 networks' proposals are biased low: trying an optimistic candidate first keeps τ near π*, and
@@ -58,6 +62,7 @@ from ..governor import (PATH_AUDIT, PATH_BISECT, PATH_INITIAL, PATH_KEEP, PATH_N
                         PATH_SEARCH,
                         PATH_STALL, PATH_VERIFY_ZERO, PATH_ZERO, UpdateRecord, initial_update, make_record,
                         start_clock, update_index)
+from ..config import Side
 from ..tsg import ChiefAnchor, ChiefCache, Predictor, quantise_shift
 from ..units import ns_to_seconds, seconds_to_ns as to_ns
 from .arch import FAMILIES, NumpyNet, log_shift_kernel
@@ -73,7 +78,7 @@ STALL_BACKOFF = 8
 SEARCHED = (PATH_SEARCH, PATH_STALL)
 
 
-def stall_miss(side: int, tau_prev: float, tau: float, reach: float) -> bool:
+def stall_miss(side: Side, tau_prev: float, tau: float, reach: float) -> bool:
     """Did a stall search's answer tau move beyond ``reach`` (a fraction of |tau_prev|) from
     tau_prev? reach 0: any progress. In magnitudes m = side · τ."""
     return side * tau < side * tau_prev * (1.0 - reach)
@@ -171,6 +176,20 @@ class Trust:
             self.credit, self.hits = min(1, self.cap), 0
 
 
+class KeepStep:
+    """The keep rule's answer in the making: τ (s), its path, the Verify calls, the chief cache;
+    and what the audit and the trust read from it: ``stuck`` (every candidate failed and the
+    search below them found nothing) and ``miss`` (True: a miss, False: a hit, None: no
+    evidence)."""
+
+    __slots__ = ("tau", "path", "calls", "cache", "stuck", "miss")
+
+    def __init__(self, tau: float, path: str, calls: int, cache: ChiefCache, stuck: bool = False,
+                 miss: bool | None = None) -> None:
+        self.tau, self.path, self.calls, self.cache = tau, path, calls, cache
+        self.stuck, self.miss = stuck, miss
+
+
 class LearnedGovernor:
     """Algorithm 1 with a network π̃_θ (ln|τ| from z-scored features) and Verify/bisection fallback."""
 
@@ -188,7 +207,7 @@ class LearnedGovernor:
         self.model_dir: Path | None = None
         self.weights_sha256: str | None = None
         self._code = FEATURE_CODES[net.arch.features]
-        self._ladder = np.array(lc.ladder, dtype=np.float64)
+        self._rungs = np.array(lc.ladder, dtype=np.float64)
         self._cands_ns = np.empty(len(lc.ladder), dtype=np.int64)
 
     @classmethod
@@ -255,82 +274,127 @@ class LearnedGovernor:
     def _keep(self, pred: Predictor, x_d: ArrayLike, t: float, tau_prev: float, tau_c: float,
               k: int) -> tuple[float, str, int, ChiefCache | None]:
         """The keep rule (without the zero test) with the anchored model ``pred``: (τ, path,
-        Verify calls, chief cache or None)."""
-        lc = pred.config.learned
+        Verify calls, chief cache or None). Its steps, as docs/learned_update_rule.md states
+        them: trust (an untrusted network's update is the conventional TSG's), stall, ladder,
+        probe, audit, and the judgement of the update by the trust."""
         trust = self.trust
-        if trust.searching:  # π* as the conventional TSG finds it (its zero test first)
-            tau, calls = pred.optimal_shift(x_d, t, tau_prev)
-            judged = self.would_pay(tau_c, tau_prev, tau)
-            if judged is not None:
-                trust.shadow(judged)
-            return tau, PATH_SEARCH, calls, None
+        if trust.searching:
+            return self._search(pred, x_d, t, tau_prev, tau_c)
         if trust.stall_due():
-            # The stall rule: tau_prev held for stall_updates trusted updates in a row. Either
-            # pi* = tau_prev (a stall: every network looks alike) or the feasible progress per
-            # update is below every step the rule tries (measured in GEO's approach-speed-bound
-            # tail: ~0.4 % of |tau| per update, against the audit's 10 %), which would hold tau
-            # for good. So search like the conventional TSG. Progress found is a miss (with
-            # stall_judge "audit": only progress beyond the audit's reach, as for the audit).
-            # A search that finds nothing backs off (true stalls are common on the paper's orbit,
-            # where the deputy rides the cone's edge).
-            tau, calls = pred.optimal_shift(x_d, t, tau_prev)
-            if tau == tau_prev:
-                trust.stall_found_nothing()
-            elif stall_miss(pred.side, tau_prev, tau, lc.audit_step if lc.stall_judge == "audit" else 0.0):
-                trust.judge(True)
-            return tau, PATH_STALL, calls, None
-        scheduled = k % lc.probe_every == 0
-        if scheduled and pred.config.tsg.robust and abs(tau_prev) <= pred.config.tsg.zero_snap_s:
-            # Robust Verify's last approach: the feasible shifts above tau_prev form a thin
-            # sliver that a budgeted probe misses (measured: tau stalled 3 m from the chief), so
-            # the scheduled update searches like the conventional TSG (<= log2(zero_snap/tol) + 1
-            # calls); a safe answer either way (verified, or tau_prev).
+            return self._stall(pred, x_d, t, tau_prev)
+        scheduled = k % pred.config.learned.probe_every == 0
+        if scheduled and self._last_approach(pred, tau_prev):
             tau, calls = pred.optimal_shift(x_d, t, tau_prev)
             return tau, PATH_PROBE, calls, None
-        n = ladder_kernel(tau_c, tau_prev, pred.side, self._ladder, lc.min_step_s, lc.min_progress,
-                          self._cands_ns)
-        if n:
-            cache = pred.cache(t)
-            budget = lc.probe_budget if scheduled else lc.fallback_budget
-            tau, index, calls = pred.first_feasible_ns(x_d, t, self._cands_ns[:n], to_ns(tau_prev), budget,
-                                                       cache)
-            path = PATH_NN if index >= 0 else PATH_NN_BISECT if budget > 0 else PATH_KEEP
-            stuck = index < 0 and tau == tau_prev   # every proposal failed and nothing was found
-            miss: bool | None = None
-        elif not scheduled or lc.probe_budget == 0:
-            if not trust.probation:
+        step = self._ladder_step(pred, x_d, t, tau_prev, tau_c, scheduled)
+        if step is None:  # the ladder proposes no progress
+            step = self._probe(pred, x_d, t, tau_prev, scheduled)
+            if step is None:  # an unscheduled hold, the network trusted at the cap: no audit
                 return tau_prev, PATH_KEEP, 0, None
-            tau, path, calls, cache, stuck, miss = tau_prev, PATH_KEEP, 0, pred.cache(t), False, None
-        else:
-            cache = pred.cache(t)
-            tau, calls = pred.bisect(x_d, t, tau_prev, 0.0, cache, lc.probe_budget)
-            path = PATH_PROBE
-            stuck = False
-            # The network proposed no progress, and the probe found some: a miss.
-            miss = True if tau != tau_prev else None
-        if (scheduled or stuck or trust.probation) and lc.audit_step > 0.0 and tau != 0.0:
-            # The audit: does the answer lag π*? One Verify audit_step of the way from it to 0;
-            # when it passes, the network left that much progress behind (a miss), and the
-            # audited shift, verified, is the answer. Also when every proposal failed and the
-            # search below them found nothing: a stall (π* = τ_prev) or a network that overshoots.
-            audit = quantise_shift(tau * (1.0 - lc.audit_step))
-            if audit != tau:
-                calls += 1
-                lags = pred.verify(x_d, t, audit, cache)
-                if lags:
-                    miss = True
-                    tau, path = audit, PATH_AUDIT
-                elif path == PATH_NN and abs(tau) <= abs(tau_prev) * (1.0 - lc.audit_step):
-                    # No lag, after a proposal's step beyond the audit's reach: evidence of a
-                    # network that tracks π*. (No lag after a smaller step, a stall say, or
-                    # after a step the search found, is no evidence.)
-                    miss = False
-        if miss is not None:  # one judgement per update
-            trust.judge(miss)
-            if trust.searching:  # trust lost: this update already answers π*, not the audit's step
+        self._audit(pred, x_d, t, tau_prev, step, scheduled)
+        return self._judge(pred, x_d, t, tau_prev, step)
+
+    def _search(self, pred: Predictor, x_d: ArrayLike, t: float, tau_prev: float, tau_c: float
+                ) -> tuple[float, str, int, None]:
+        """Trust, c = 0 (searching): π* as the conventional TSG finds it (its zero test first);
+        the proposal τ_c is judged against it for free (:meth:`would_pay`, a shadow judgement)."""
+        tau, calls = pred.optimal_shift(x_d, t, tau_prev)
+        judged = self.would_pay(tau_c, tau_prev, tau)
+        if judged is not None:
+            self.trust.shadow(judged)
+        return tau, PATH_SEARCH, calls, None
+
+    def _stall(self, pred: Predictor, x_d: ArrayLike, t: float, tau_prev: float
+               ) -> tuple[float, str, int, None]:
+        """The stall rule: τ_prev held for learned.stall_updates trusted updates in a row.
+
+        Either π* = τ_prev (a stall: every network looks alike) or the feasible progress per
+        update is below every step the rule tries (measured in GEO's approach-speed-bound tail:
+        ~0.4 % of |τ| per update, against the audit's 10 %), which would hold τ for good. So
+        search like the conventional TSG. Progress found is a miss (with stall_judge "audit":
+        only progress beyond the audit's reach, as for the audit). A search that finds nothing
+        backs off (true stalls are common on the paper's orbit, where the deputy rides the
+        cone's edge)."""
+        lc = pred.config.learned
+        tau, calls = pred.optimal_shift(x_d, t, tau_prev)
+        if tau == tau_prev:
+            self.trust.stall_found_nothing()
+        elif stall_miss(pred.side, tau_prev, tau, lc.audit_step if lc.stall_judge == "audit" else 0.0):
+            self.trust.judge(True)
+        return tau, PATH_STALL, calls, None
+
+    @staticmethod
+    def _last_approach(pred: Predictor, tau_prev: float) -> bool:
+        """Robust Verify's last approach, |τ_prev| <= tsg.zero_snap_s: the feasible shifts above
+        τ_prev form a thin sliver that a budgeted probe misses (measured: τ stalled 3 m from the
+        chief), so a scheduled update's probe there is the conventional TSG's search (<=
+        log2(zero_snap/tol) + 1 calls), before the ladder; a safe answer either way (verified,
+        or τ_prev)."""
+        return pred.robust and abs(tau_prev) <= pred.config.tsg.zero_snap_s
+
+    def _ladder_step(self, pred: Predictor, x_d: ArrayLike, t: float, tau_prev: float, tau_c: float,
+                     scheduled: bool) -> KeepStep | None:
+        """The ladder: the candidates C (:meth:`candidates`) verified in order, the first that
+        passes answered [nn]; none passes: bisect_b(τ_prev, last candidate) with b = B_p when
+        scheduled, else B [nn+bisect, or keep with b = 0]. None when C is empty."""
+        lc = pred.config.learned
+        n = ladder_kernel(tau_c, tau_prev, int(pred.side), self._rungs, lc.min_step_s, lc.min_progress,
+                          self._cands_ns)
+        if not n:
+            return None
+        cache = pred.cache(t)
+        budget = lc.probe_budget if scheduled else lc.fallback_budget
+        tau, index, calls = pred.first_feasible_ns(x_d, t, self._cands_ns[:n], to_ns(tau_prev), budget, cache)
+        path = PATH_NN if index >= 0 else PATH_NN_BISECT if budget > 0 else PATH_KEEP
+        # stuck: every proposal failed and the search below them found nothing
+        return KeepStep(tau, path, calls, cache, stuck=index < 0 and tau == tau_prev)
+
+    def _probe(self, pred: Predictor, x_d: ArrayLike, t: float, tau_prev: float, scheduled: bool
+               ) -> KeepStep | None:
+        """C is empty. Not scheduled (or B_p = 0): τ_prev [keep], no prediction; None when the
+        network is trusted at the cap (nothing follows), else the held τ_prev for the
+        probation's audit. Scheduled: the probe bisect_{B_p}(τ_prev, 0) [probe]; progress it
+        finds where the network proposed none is a miss."""
+        lc = pred.config.learned
+        if not scheduled or lc.probe_budget == 0:
+            return KeepStep(tau_prev, PATH_KEEP, 0, pred.cache(t)) if self.trust.probation else None
+        cache = pred.cache(t)
+        tau, calls = pred.bisect(x_d, t, tau_prev, 0.0, cache, lc.probe_budget)
+        return KeepStep(tau, PATH_PROBE, calls, cache, miss=True if tau != tau_prev else None)
+
+    def _audit(self, pred: Predictor, x_d: ArrayLike, t: float, tau_prev: float, step: KeepStep,
+               scheduled: bool) -> None:
+        """The audit, on scheduled updates, on every update on probation and when ``step`` is
+        stuck (a stall, π* = τ_prev, or a network that overshoots): does the answer lag π*? One
+        Verify audit_step of the way from it to 0; when it passes, the network left that much
+        progress behind (a miss), and the audited shift, verified, is the answer [audit]. When
+        it fails after a proposal's step ([nn]) beyond the audit's reach, a hit: evidence of a
+        network that tracks π* (no lag after a smaller step, a stall say, or after a step the
+        search found, is no evidence). Updates ``step`` in place."""
+        lc = pred.config.learned
+        if not ((scheduled or step.stuck or self.trust.probation) and lc.audit_step > 0.0
+                and step.tau != 0.0):
+            return
+        audit = quantise_shift(step.tau * (1.0 - lc.audit_step))
+        if audit == step.tau:
+            return
+        step.calls += 1
+        if pred.verify(x_d, t, audit, step.cache):
+            step.miss = True
+            step.tau, step.path = audit, PATH_AUDIT
+        elif step.path == PATH_NN and abs(step.tau) <= abs(tau_prev) * (1.0 - lc.audit_step):
+            step.miss = False
+
+    def _judge(self, pred: Predictor, x_d: ArrayLike, t: float, tau_prev: float, step: KeepStep
+               ) -> tuple[float, str, int, ChiefCache | None]:
+        """One judgement per update (a miss takes a credit, a hit adds one); when it costs the
+        last credit, this update already answers π* [search], not the audit's step."""
+        if step.miss is not None:
+            self.trust.judge(step.miss)
+            if self.trust.searching:
                 tau, c = pred.optimal_shift(x_d, t, tau_prev)
-                return tau, PATH_SEARCH, calls + c, None
-        return tau, path, calls, cache
+                return tau, PATH_SEARCH, step.calls + c, None
+        return step.tau, step.path, step.calls, step.cache
 
     def would_pay(self, tau_c: float, tau_prev: float, tau_star: float) -> bool | None:
         """Shadow judgement: would the keep rule on τ_c have answered within the audit's reach
@@ -354,7 +418,7 @@ class LearnedGovernor:
         learned.min_progress). In magnitudes m = side · τ, so one rule serves both sides."""
         lc = self.predictor.config.learned
         out = np.empty(len(lc.ladder), dtype=np.int64)
-        n = ladder_kernel(float(tau_c), float(tau_prev), self.predictor.side, self._ladder, lc.min_step_s,
+        n = ladder_kernel(float(tau_c), float(tau_prev), int(self.predictor.side), self._rungs, lc.min_step_s,
                           lc.min_progress, out)
         return [ns_to_seconds(int(v)) for v in out[:n]]
 

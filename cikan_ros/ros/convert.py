@@ -24,6 +24,7 @@ from numpy.typing import ArrayLike, NDArray
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import TimeReference
 
+from ..config import Side
 from ..errors import StateError
 from ..units import km_to_m, m_to_km, ns_to_seconds, seconds_to_ns
 
@@ -181,14 +182,14 @@ def time_shift_msg(stamp_ns: int, tau_s: float, source: str) -> TimeReference:
     return msg
 
 
-def shift_from_msg(msg: TimeReference, side: int = -1) -> tuple[int, float, str]:
+def shift_from_msg(msg: TimeReference, side: Side) -> tuple[int, float, str]:
     """(stamp ns, tau s, source) of a TimeReference; MessageError unless tau lies on the
-    mission's side of 0 (``side`` -1: tau <= 0, the deputy behind the chief; +1: tau >= 0)."""
+    mission's ``side`` of 0 (BEHIND: tau <= 0, the deputy behind the chief; AHEAD: tau >= 0)."""
     stamp = time_to_ns(msg.header.stamp)
     tau_ns = time_to_ns(msg.time_ref) - stamp
     if side * tau_ns < 0:
         raise MessageError(f"time shift must be {'<=' if side < 0 else '>='} 0 "
-                           f"(mission.approach {'behind' if side < 0 else 'ahead'}), got {tau_ns} ns")
+                           f"(mission.approach {side.approach}), got {tau_ns} ns")
     return stamp, ns_to_seconds(tau_ns), msg.source
 
 
