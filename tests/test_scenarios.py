@@ -23,6 +23,7 @@ from cikan_ros.learn.errors import ModelFileError
 from cikan_ros.learn.modelfile import MODELS_DIR, scenario_model_dir
 from cikan_ros.mission import nominal_shift, nominal_start, run_mission, sample_start
 from cikan_ros.tsg import Predictor
+from cikan_ros.units import through_si
 
 COS20 = math.cos(math.radians(20.0))
 
@@ -101,7 +102,9 @@ def test_nominal_start_ahead_is_the_chief_orbit_point_d_ahead(ahead: Predictor) 
 
 def test_searches_ahead_agree_with_verify(ahead: Predictor) -> None:
     """First-instant search and pi* ahead of the chief, checked against Verify itself: the
-    answer passes, and the shift one tolerance closer to 0 fails (the bisection's bracket)."""
+    answer passes, and the bisection's bracket ends within the tolerance closer to 0 on a shift
+    Verify rejects (feasibility is not monotone near the answer, SPEC §5: the rejected shift is
+    the bracket's end, not any shift one tolerance away)."""
     x0 = sample_start(ahead, 3)
     tau0, _ = ahead.initial_shift(x0, 0.0)
     assert 0.0 < tau0 <= ahead.config.tsg.initial_window_s
@@ -112,10 +115,12 @@ def test_searches_ahead_agree_with_verify(ahead: Predictor) -> None:
         if not u.active or u.tau_s in (0.0, u.tau_prev):
             continue
         step = round(u.k * 6)
-        x = res.x_d[step]
+        x = through_si(res.x_d[step])                      # what the governor saw
         t = float(res.t[step])
         assert ahead.verify(x, t, u.tau_s)
-        assert not ahead.verify(x, t, u.tau_s - ahead.config.tsg.tolerance_s)
+        lo, hi, _ = ahead.bisect_bracket(x, t, u.tau_prev, 0.0)
+        assert lo == u.tau_s and 0.0 < lo - hi <= ahead.config.tsg.tolerance_s + 1e-12
+        assert not ahead.verify(x, t, hi)
         checked += 1
         if checked == 5:
             break
