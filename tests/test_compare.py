@@ -44,7 +44,8 @@ def test_a_learned_governor_against_the_conventional_on_the_same_starts() -> Non
     variants = {"keep": cfg, "paper": cfg.replace(**{"learned.algorithm": "paper"})}
     seeds = [3, 4]
     rows = compare(variants, ["cikan"], seeds)
-    assert [(r["variant"], r["governor"], r["runs"]) for r in rows] == [("keep", "cikan", 2), ("paper", "cikan", 2)]
+    assert [(r["variant"], r["governor"], r["runs"]) for r in rows] == [("keep", "cikan", 2),
+                                                                         ("paper", "cikan", 2)]
 
     def flown(name: str, c) -> list:
         gov = make_governor(name, c)
@@ -64,11 +65,15 @@ def test_a_learned_governor_against_the_conventional_on_the_same_starts() -> Non
         b = np.array([m["delta_v_kmps"] for m in conv])
         ratio = a.sum() / b.sum()
         assert row["delta_v_ratio"] == pytest.approx(ratio, rel=1e-12)
-        assert row["delta_v_ratio_se"] == pytest.approx(math.sqrt(2 * np.sum((a - ratio * b) ** 2)) / b.sum(), rel=1e-9)
-        both = [(x["t_tau_zero_s"], y["t_tau_zero_s"]) for x, y in zip(mine, conv) if x["t_tau_zero_s"] is not None]
-        assert row["t_tau_zero_ratio"] == pytest.approx(sum(x for x, _ in both) / sum(y for _, y in both), rel=1e-12)
+        se = math.sqrt(2 / 1 * np.sum((a - ratio * b) ** 2)) / b.sum()    # n / (n - 1) = 2
+        assert row["delta_v_ratio_se"] == pytest.approx(se, rel=1e-9)
+        both = [(x["t_tau_zero_s"], y["t_tau_zero_s"]) for x, y in zip(mine, conv)
+                if x["t_tau_zero_s"] is not None]
+        t_ratio = sum(x for x, _ in both) / sum(y for _, y in both)
+        assert row["t_tau_zero_ratio"] == pytest.approx(t_ratio, rel=1e-12)
         assert row["success"] == sum(m["success"] for m in mine) and row["violations"] == 0
-        assert row["verify_calls_mean"] == pytest.approx(sum(u.verify_calls for u in active) / len(active), rel=1e-12)
+        calls = sum(u.verify_calls for u in active) / len(active)
+        assert row["verify_calls_mean"] == pytest.approx(calls, rel=1e-12)
         # what a learned governor is for: fewer predictions per decision than the bisection's
         # ~log2(|tau_prev| / 1e-5 s) (measured 8.1 keep, 10.5 paper against 18.6)
         assert row["verify_calls_mean"] < conv_calls

@@ -238,8 +238,10 @@ def _bag_record(bag: Path) -> dict[str, np.ndarray]:
     from mcap.reader import make_reader
     from mcap_ros2.decoder import DecoderFactory
 
+    def ns(t: Any) -> int:
+        return t.sec * 10**9 + t.nanosec
+
     rows: dict[str, list] = {"/chief/odom": [], "/deputy/odom": [], "/tsg/time_shift": [], "/deputy/accel_cmd": []}
-    ns = lambda t: t.sec * 10**9 + t.nanosec  # noqa: E731
     with open(next(bag.glob("*.mcap")), "rb") as f:
         for _, channel, _, msg in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
             if channel.topic.endswith("/odom"):
