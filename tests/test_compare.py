@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
 import pytest
 
 from cikan_ros.cli import main
 from cikan_ros.compare import compare, relative_figures
 from cikan_ros.config import load_config
+from cikan_ros.governor import make_governor
+from cikan_ros.mission import run_mission, sample_start
 
 
 def _run(dv: float, t0: float | None, cpu: float, n: int, calls: int, ok: bool = True) -> dict:
@@ -29,15 +34,50 @@ def test_relative_figures_are_ratios_of_sums_on_paired_starts() -> None:
     assert (f["success"], f["violations"]) == (1, 0)
 
 
-def test_the_conventional_against_itself_is_exactly_one() -> None:
-    """Same starts, same deterministic governor: every ratio is 1 (the pairing is by seed)."""
-    cfg = load_config()
-    rows = compare({"default": cfg, "other rule": cfg.replace(**{"learned.algorithm": "paper"})},
-                   ["conventional"], [3])
-    assert [r["variant"] for r in rows] == ["default", "other rule"]
-    for r in rows:
-        assert r["delta_v_ratio"] == 1.0 and r["t_tau_zero_ratio"] == 1.0
-        assert (r["success"], r["violations"], r["runs"]) == (1, 0, 1)
+def test_a_learned_governor_against_the_conventional_on_the_same_starts() -> None:
+    """`compare` for the shipped CIKAN under two rules against the conventional TSG (flown once:
+    the learned.* settings do not change it) equals the figures written out here from missions
+    flown directly, each governor fresh, on the same Monte Carlo starts: sums of ΔV and of t(τ=0),
+    successes, violations, Verify calls per active update, which are fewer than the conventional
+    TSG's. 90-min missions (the conventional's τ reaches 0 in them)."""
+    cfg = load_config(**{"mission.duration_s": 5400.0})
+    variants = {"keep": cfg, "paper": cfg.replace(**{"learned.algorithm": "paper"})}
+    seeds = [3, 4]
+    rows = compare(variants, ["cikan"], seeds)
+    assert [(r["variant"], r["governor"], r["runs"]) for r in rows] == [("keep", "cikan", 2),
+                                                                         ("paper", "cikan", 2)]
+
+    def flown(name: str, c) -> list:
+        gov = make_governor(name, c)
+        return [run_mission(gov if name == "conventional" else make_governor(name, c),
+                            sample_start(gov.predictor, s), s) for s in seeds]
+
+    conv_runs = flown("conventional", cfg)
+    conv = [r.metrics() for r in conv_runs]
+    assert all(m["t_tau_zero_s"] is not None for m in conv)
+    conv_active = [u for r in conv_runs for u in r.updates if u.active]
+    conv_calls = sum(u.verify_calls for u in conv_active) / len(conv_active)
+    for row, c in zip(rows, variants.values()):
+        runs = flown("cikan", c)
+        mine = [r.metrics() for r in runs]
+        active = [u for r in runs for u in r.updates if u.active]
+        a = np.array([m["delta_v_kmps"] for m in mine])
+        b = np.array([m["delta_v_kmps"] for m in conv])
+        ratio = a.sum() / b.sum()
+        assert row["delta_v_ratio"] == pytest.approx(ratio, rel=1e-12)
+        se = math.sqrt(2 / 1 * np.sum((a - ratio * b) ** 2)) / b.sum()    # n / (n - 1) = 2
+        assert row["delta_v_ratio_se"] == pytest.approx(se, rel=1e-9)
+        both = [(x["t_tau_zero_s"], y["t_tau_zero_s"]) for x, y in zip(mine, conv)
+                if x["t_tau_zero_s"] is not None]
+        t_ratio = sum(x for x, _ in both) / sum(y for _, y in both)
+        assert row["t_tau_zero_ratio"] == pytest.approx(t_ratio, rel=1e-12)
+        assert row["success"] == sum(m["success"] for m in mine) and row["violations"] == 0
+        calls = sum(u.verify_calls for u in active) / len(active)
+        assert row["verify_calls_mean"] == pytest.approx(calls, rel=1e-12)
+        # what a learned governor is for: fewer predictions per decision than the bisection's
+        # ~log2(|tau_prev| / 1e-5 s) (measured 8.1 keep, 10.5 paper against 18.6)
+        assert row["verify_calls_mean"] < conv_calls
+        assert row["active_speedup"] > 0.0
 
 
 @pytest.mark.parametrize("args, problem", [

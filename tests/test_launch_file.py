@@ -1,6 +1,9 @@
-"""launch/mission.launch.yaml (for ROS installs; the launch package is not installable here) against
-the graph definition (cikan_ros/ros/graph_spec.py) and what the built-in launcher really starts
-(cikan_ros/ros/launch.py: its node modules and the params file it writes)."""
+"""launch/mission.launch.yaml (for ROS installs) against the graph definition
+(cikan_ros/ros/graph_spec.py) and what the built-in launcher really starts (cikan_ros/ros/launch.py:
+its node modules and the params file it writes). The ROS launch system cannot launch it here:
+launch, launch_ros, launch_yaml and ros2launch are not published as ros-jazzy-* wheels on PyPI
+(`pip download --no-deps ros-jazzy-launch ros-jazzy-launch-ros`: no matching distribution,
+2026-11-25), so the file is read with the two substitutions it uses."""
 
 from __future__ import annotations
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -44,15 +45,21 @@ def test_campaign_results_files_and_reuse(cfg, tmp_path):
 
 
 def test_dask_cluster_gives_the_same_runs(cfg, tmp_path):
-    """A real distributed.LocalCluster on loopback flies the same runs as the local executor."""
-    from distributed import LocalCluster
+    """A real distributed.LocalCluster on loopback, its worker a separate process, flies the same
+    runs as the local executor: every run, in seed order, with the same metrics."""
+    from distributed import Client, LocalCluster
 
     local = run_campaign(cfg, ["conventional"], runs=2, seed=21, out_dir=tmp_path / "a", progress=False)
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, protocol="tcp", host="127.0.0.1",
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, protocol="tcp", host="127.0.0.1",
                       dashboard_address=None) as cluster:
+        with Client(cluster) as client:
+            pids = client.run(os.getpid)
+        assert len(pids) == 1 and os.getpid() not in pids.values()
         remote = run_campaign(cfg, ["conventional"], runs=2, seed=21, out_dir=tmp_path / "b",
                               dask_address=cluster.scheduler_address, progress=False)
-    for a, b in zip(local["conventional"], remote["conventional"]):
+    a_runs, b_runs = local["conventional"], remote["conventional"]
+    assert [r["seed"] for r in a_runs] == [r["seed"] for r in b_runs] == [21, 22]
+    for a, b in zip(a_runs, b_runs, strict=True):
         timing = {k for k in a if k.endswith("_ms") or "_ms_" in k}
         assert {k: v for k, v in a.items() if k not in timing} == {k: v for k, v in b.items() if k not in timing}
 

@@ -3,14 +3,17 @@ in-process metrics."""
 
 from __future__ import annotations
 
+import json
 import math
+import shutil
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
 from cikan_ros.analysis.report import write_report
-from cikan_ros.paired import paired_ratio
 from cikan_ros.analysis.table import COLUMNS, _runs, build_table, to_csv, to_markdown
 from cikan_ros.montecarlo import run_campaign
 
@@ -22,12 +25,95 @@ MODEL_COLUMNS = ("trainable_params", "paper_complexity", "loss_train_1e3", "loss
 
 
 def _assert_page(page: Path) -> None:
+    """Every figure is linked from the page and is a PNG that decodes to an image."""
+    import matplotlib.image
+
     text = page.read_text()
     for name in FIGURES:
         png = page.parent / f"{name}.png"
-        assert png.exists() and png.stat().st_size > 10_000, name  # a drawn figure, not an empty canvas
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        assert min(matplotlib.image.imread(png).shape[:2]) > 300, name
         assert f"]({name}.png)" in text
+
+
+@dataclass
+class Drawn:
+    """What one saved figure plotted: per axes its labels and its lines (x, y, colour)."""
+
+    axes: list[dict[str, Any]]
+
+    def lines(self, ax: int = 0, n: int | None = None) -> list[tuple[np.ndarray, np.ndarray, str]]:
+        """The data lines of axes ``ax`` (those with ``n`` points when given)."""
+        return [ln for ln in self.axes[ax]["lines"] if n is None or len(ln[0]) == n]
+
+
+@pytest.fixture
+def drawn(monkeypatch) -> dict[str, Drawn]:
+    """{figure name: Drawn} of every figure the report saves (the last one of a name)."""
+    from matplotlib.colors import to_hex
+
+    from cikan_ros.analysis import figures
+
+    out: dict[str, Drawn] = {}
+    save = figures._save
+
+    def capture(fig, path):
+        out[Path(path).stem] = Drawn([{
+            "xlabel": ax.get_xlabel(), "ylabel": ax.get_ylabel(),
+            "lines": [(np.asarray(ln.get_xdata(), dtype=float), np.asarray(ln.get_ydata(), dtype=float),
+                       to_hex(ln.get_color())) for ln in ax.get_lines()]} for ax in fig.axes])
+        return save(fig, path)
+
+    monkeypatch.setattr(figures, "_save", capture)
+    return out
+
+
+def _same(a: np.ndarray, b: np.ndarray) -> bool:
+    """Equal to rounding of the largest value (the bag holds states in metres, the library km)."""
+    scale = float(np.nanmax(np.abs(b))) if np.any(np.isfinite(b)) else 0.0
+    return a.shape == b.shape and bool(np.allclose(a, b, rtol=1e-12, atol=1e-12 * scale, equal_nan=True))
+
+
+def _assert_histories(drawn: dict[str, Drawn], runs: list[dict[str, np.ndarray]], colours: list[str]) -> None:
+    """Fig. 3b, 3d, 3e, 3a, 4 plot each run's own histories (from its record, in the units the
+    axes name) in its governor's colour; Fig. 3c each governor's mean over its runs."""
+    n = len(runs[0]["t"])
+    hours = (runs[0]["t"] - runs[0]["t"][0]) / 3600.0
+    for name, ylabel, values in (
+            ("fig3b_tau", "time shift τ (s)", [r["tau"] for r in runs]),
+            ("fig3d_distance", "relative distance (km)",
+             [np.sqrt(np.sum((r["x_d"][:, :3] - r["x_c"][:, :3]) ** 2, axis=1)) for r in runs]),
+            ("fig3e_speed", "relative speed (m/s)",
+             [1e3 * np.sqrt(np.sum((r["x_d"][:, 3:] - r["x_c"][:, 3:]) ** 2, axis=1)) for r in runs])):
+        fig = drawn[name]
+        assert (fig.axes[0]["xlabel"], fig.axes[0]["ylabel"]) == ("time (h)", ylabel)
+        lines = fig.lines(0, n)
+        assert len(lines) == len(runs), name
+        for (x, y, colour), want, c in zip(lines, values, colours):
+            assert _same(x, hours) and _same(y, want) and colour == c, name
+    # Fig. 3a: per run, V (along the chief's velocity) against B and N; |V| <= |p_rel|, the
+    # start behind the chief (V < 0), the end at the chief (docked: under 1 m)
+    fig = drawn["fig3a_relative_vnb"]
+    assert [a["ylabel"] for a in fig.axes[:2]] == ["B (km)", "N (km)"]
+    for ax in (0, 1):
+        lines = fig.lines(ax, n)
+        assert len(lines) == len(runs)
+        for (v, _, _), r in zip(lines, runs):
+            dist = np.sqrt(np.sum((r["x_d"][:, :3] - r["x_c"][:, :3]) ** 2, axis=1))
+            assert np.all(np.abs(v) <= dist + 1e-12 * dist.max()) and v[0] < -0.5 * dist[0] and abs(v[-1]) < 1e-3
+    # Fig. 3c: each governor's mean tau over its runs
+    fig = drawn["fig3c_mean_tau"]
+    for colour in dict.fromkeys(colours):
+        group = [r["tau"] for r, c in zip(runs, colours) if c == colour]
+        (x, y, _), = [ln for ln in fig.lines(0, n) if ln[2] == colour]
+        assert _same(x, hours) and _same(y, np.mean(group, axis=0))
+    # Fig. 4: h1 normalised, h2 and h3 of one run (m/s^2, m/s), each with the red line h = 0
+    fig = drawn["fig4_constraints"]
+    assert [a["ylabel"] for a in fig.axes] == ["h1 / (|v_c||p_rel|)", "h2 = |u| - u_max (m/s²)", "h3 (m/s)"]
+    (_, h1, _), = fig.lines(0, n)
+    assert any(_same(h1, r["h1_normalised"]) for r in runs)
+    for ax in range(3):
+        assert any(c == "#d62728" and np.all(y == 0.0) for _, y, c in fig.lines(ax, 2))
 
 
 @pytest.fixture(scope="module")
@@ -47,25 +133,79 @@ def test_table_has_every_column_filled(campaign):
         assert conv[c] is None  # the conventional TSG has no network
     assert conv["speedup_mean"] == 1.0 and cikan["runs"] == 3
     assert 0.0 <= cikan["nn_accept_rate"] <= 1.0 and cikan["rmse_tau_s"] >= 0.0
-    dv = {g: [m["delta_v_kmps"] for m, _, _ in _runs(campaign / g)] for g in ("cikan", "conventional")}
-    assert cikan["delta_v_vs_conventional_se"] == paired_ratio(dv["cikan"], dv["conventional"]).se
+    # ΔV ratio of sums over the paired runs and its delta-method SE (Cochran), written out:
+    # R = Σa/Σb, SE = sqrt(n/(n-1) Σ(a_i - R b_i)²) / Σb
+    a, b = (np.array([json.loads(j.read_text())["metrics"]["delta_v_kmps"]
+                      for j in sorted((campaign / g).glob("seed_*.json"))]) for g in ("cikan", "conventional"))
+    r = a.sum() / b.sum()
+    assert cikan["delta_v_vs_conventional"] == pytest.approx(r - 1.0, rel=1e-12, abs=1e-15)
+    assert cikan["delta_v_vs_conventional_se"] == pytest.approx(
+        math.sqrt(3 / 2 * np.sum((a - r * b) ** 2)) / b.sum(), rel=1e-12)
     md, csv = to_markdown(rows), to_csv(rows)
     assert "*paper: CIKAN (128,5,17)*" in md and "| **cikan**" in md
     assert f"± {100 * cikan['delta_v_vs_conventional_se']:.1f} %)" in md
     assert csv.splitlines()[0].split(",") == list(COLUMNS) and len(csv.splitlines()) == 3
 
 
-def test_rmse_is_zero_for_the_conventional_answers(campaign, cfg):
-    """Sanity of the RMSE machinery: pi* at the conventional governor's own states is its answer."""
+def _rmse_by_hand(gov_dir: Path, predictor) -> tuple[float, float]:
+    """SPEC §9 written out: at every update k of every stored run, the state the governor saw
+    (step k P_upd/T_c, sent through SI: metres) and its tau_prev; pi* = the conventional TSG's
+    answer there, 0 with no prediction when tau_prev = 0; RMSE = sqrt(mean((tau - pi*)^2)) over
+    all updates and over those with tau_prev < 0."""
+    err_all, err_active = [], []
+    for npz in sorted(gov_dir.glob("seed_*.npz")):
+        with np.load(npz) as a:
+            for k, tau_prev, tau in zip(a["update_k"], a["update_tau_prev"], a["update_tau"]):
+                step = int(k) * 6                                   # 60 s updates, 10 s steps
+                x = a["x_d"][step] * 1000.0 / 1000.0
+                star = predictor.optimal_shift(x, float(a["t"][step]), float(tau_prev))[0] if tau_prev < 0 else 0.0
+                err_all.append(tau - star)
+                if tau_prev < 0:
+                    err_active.append(tau - star)
+    return math.sqrt(np.mean(np.square(err_all))), math.sqrt(np.mean(np.square(err_active)))
+
+
+def test_rmse_is_the_error_against_pi_star(campaign, predictor):
+    """The table's RMSE of the learned governor equals SPEC §9's, computed here state by state."""
+    cikan = build_table(campaign)[1]
+    rmse_all, rmse_active = _rmse_by_hand(campaign / "cikan", predictor)
+    assert rmse_active > 0.0
+    assert cikan["rmse_tau_s"] == pytest.approx(rmse_all, rel=1e-12)
+    assert cikan["rmse_tau_active_s"] == pytest.approx(rmse_active, rel=1e-12)
+
+
+def test_rmse_of_known_errors(campaign, tmp_path):
+    """Hand-computed: the conventional runs are their own pi* (RMSE 0); with the answers of two
+    active updates moved by +0.3 s and -0.4 s and one update after tau = 0 by +1.2 s (states
+    unchanged), RMSE = sqrt((0.09 + 0.16) / n_active) over active updates and
+    sqrt((0.09 + 0.16 + 1.44) / n_all) over all of them."""
     from cikan_ros.analysis.table import rmse_against_optimal
 
-    rmse_all, rmse_active, _ = rmse_against_optimal(_runs(campaign / "conventional"))
-    assert rmse_all == 0.0 and rmse_active == 0.0
+    runs = tmp_path / "conventional"
+    shutil.copytree(campaign / "conventional", runs)
+    assert rmse_against_optimal(_runs(runs))[:2] == (0.0, 0.0)
+    npz = sorted(runs.glob("seed_*.npz"))[0]
+    with np.load(npz) as data:
+        a = {k: data[k] for k in data.files}
+    active = np.flatnonzero(a["update_tau_prev"] < 0)
+    idle = np.flatnonzero(a["update_tau_prev"] == 0)
+    tau = a["update_tau"].copy()
+    tau[active[0]] += 0.3
+    tau[active[1]] -= 0.4
+    tau[idle[0]] += 1.2
+    np.savez_compressed(npz, **{**a, "update_tau": tau})
+    n_all = sum(len(np.load(f)["update_tau"]) for f in runs.glob("seed_*.npz"))
+    n_active = sum(int(np.sum(np.load(f)["update_tau_prev"] < 0)) for f in runs.glob("seed_*.npz"))
+    rmse_all, rmse_active, _ = rmse_against_optimal(_runs(runs))
+    assert rmse_active == pytest.approx(math.sqrt(0.25 / n_active), rel=1e-9)
+    assert rmse_all == pytest.approx(math.sqrt(1.69 / n_all), rel=1e-9)
 
 
-def test_report_from_a_montecarlo_directory(campaign, tmp_path):
+def test_report_from_a_montecarlo_directory(campaign, tmp_path, drawn):
     page = write_report(campaign, tmp_path / "rep")
     _assert_page(page)
+    runs = [dict(np.load(f)) for g in ("conventional", "cikan") for f in sorted((campaign / g).glob("seed_*.npz"))]
+    _assert_histories(drawn, runs, ["#000000"] * 3 + ["#1f77b4"] * 3)
     assert (tmp_path / "rep" / "table2.csv").exists()
     assert "| conventional | 3 | 3 | 0 |" in page.read_text()
 
@@ -75,33 +215,117 @@ TIMING = {"initial_ms", "update_ms_mean", "update_ms_max", "active_update_ms_mea
           "update_cpu_ms_mean", "update_cpu_ms_max", "active_update_cpu_ms_mean", "active_update_cpu_ms_max"}
 
 
-def test_report_from_the_committed_bag(tmp_path):
-    """`cikan report` on the reference bag (a lockstep ROS run, read with rosbags) draws every figure."""
+def test_report_from_the_committed_bag(tmp_path, drawn):
+    """`cikan report` on the reference bag (a lockstep ROS run, read with rosbags) draws every
+    figure from the bag's own record."""
     page = write_report(BAG, tmp_path / "bag")
     _assert_page(page)
+    b = _bag_record(BAG)
+    n = len(b["t"])
+    tau = np.full(n, np.nan)
+    tau[np.searchsorted(b["t"], b["t_shift"])] = b["tau"]     # in force from its stamp; none at the end
+    tau[-1] = tau[-2]
+    run = {"t": b["t"], "x_d": b["x_d"] * 1e-3, "x_c": b["x_c"] * 1e-3, "tau": tau,
+           "h1_normalised": drawn["fig4_constraints"].lines(0, n)[0][1]}
+    _assert_histories(drawn, [run], ["#000000"])
     assert "| success | True |" in page.read_text()
 
 
-def test_bag_metrics_equal_the_in_process_metrics(predictor):
-    """Metrics rebuilt from the bag equal those of the same mission flown in-process (offline loop):
-    counts and shifts exactly, physical figures to rounding (the bag holds states in metres)."""
+def _bag_record(bag: Path) -> dict[str, np.ndarray]:
+    """The reference bag's messages decoded with mcap_ros2 alone (not cikan_ros's reader), SI units,
+    one row per message in stamp order: t (s since the first stamp), chief and deputy [r; v],
+    the time shift (time_ref - stamp, s) and the commanded acceleration."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    def ns(t: Any) -> int:
+        return t.sec * 10**9 + t.nanosec
+
+    rows: dict[str, list] = {"/chief/odom": [], "/deputy/odom": [], "/tsg/time_shift": [], "/deputy/accel_cmd": []}
+    with open(next(bag.glob("*.mcap")), "rb") as f:
+        for _, channel, _, msg in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
+            if channel.topic.endswith("/odom"):
+                p, v = msg.pose.pose.position, msg.twist.twist.linear
+                rows[channel.topic].append((ns(msg.header.stamp), [p.x, p.y, p.z, v.x, v.y, v.z]))
+            elif channel.topic == "/tsg/time_shift":
+                rows[channel.topic].append((ns(msg.header.stamp), (ns(msg.time_ref) - ns(msg.header.stamp)) / 1e9))
+            elif channel.topic == "/deputy/accel_cmd":
+                a = msg.accel.linear
+                rows[channel.topic].append((ns(msg.header.stamp), [a.x, a.y, a.z]))
+    out = {topic: sorted(r, key=lambda x: x[0]) for topic, r in rows.items()}
+    t0 = out["/chief/odom"][0][0]
+    assert [s for s, _ in out["/chief/odom"]] == [s for s, _ in out["/deputy/odom"]]
+    return {"t": np.array([(s - t0) / 1e9 for s, _ in out["/chief/odom"]]),
+            "x_c": np.array([x for _, x in out["/chief/odom"]]),
+            "x_d": np.array([x for _, x in out["/deputy/odom"]]),
+            "t_shift": np.array([(s - t0) / 1e9 for s, _ in out["/tsg/time_shift"]]),
+            "tau": np.array([x for _, x in out["/tsg/time_shift"]]),
+            "u": np.array([x for _, x in out["/deputy/accel_cmd"]])}
+
+
+def test_bag_metrics_are_what_the_bag_records():
+    """Metrics rebuilt from the bag equal the figures written out here from its raw messages
+    (SPEC §4, §6, §9, SI units; the paper's cone alpha = 20 deg with the port facing -v_c, h3 with
+    gamma = 5 km, 20 /s, 1 mm/s): everything they state is determined by the bag itself."""
+    from cikan_ros.analysis.report import run_from_bag
+
+    _, m = run_from_bag(BAG)
+    b = _bag_record(BAG)
+    rel = b["x_d"] - b["x_c"]
+    p, v = rel[:, :3], rel[:, 3:]
+    dist, speed = np.linalg.norm(p, axis=1), np.linalg.norm(v, axis=1)
+    vc = np.linalg.norm(b["x_c"][:, 3:], axis=1)
+    out = dist > 1.0                                          # the cone apex radius, 1 m
+    h1n = (np.einsum("ij,ij->i", b["x_c"][out, 3:], p[out]) + math.cos(math.radians(20.0)) * vc[out] * dist[out]) \
+        / (vc[out] * dist[out])
+    near = dist <= 5000.0
+    h3 = (speed[near] - 20.0 * dist[near] - 1.0) * 1e-3      # km/s
+    dv = 10.0 * np.linalg.norm(b["u"], axis=1).sum() * 1e-3  # km/s: T_c sum |u_k|
+    at_dock = (dist < 1.0) & (speed < 1e-3)
+    assert m["delta_v_kmps"] == pytest.approx(dv, rel=1e-12)
+    # positions of ~7e6 m carry ~1e-9 m of rounding (the library works in km), speeds ~1e-12 m/s
+    assert m["final_distance_m"] == pytest.approx(dist[-1], abs=1e-8)
+    assert m["final_speed_mps"] == pytest.approx(speed[-1], abs=1e-10)
+    assert m["min_h1_margin"] == pytest.approx(-h1n.max(), rel=1e-6, abs=1e-12)
+    assert m["max_h3"] == pytest.approx(h3.max(), rel=1e-9)
+    assert m["violations"] == int(np.count_nonzero(h1n > 1e-9) + np.count_nonzero(h3 > 1e-9)) == 0
+    assert m["tau0_s"] == b["tau"][0]
+    assert m["t_tau_zero_s"] == b["t_shift"][np.argmax(b["tau"] == 0.0)]
+    assert m["t_docked_s"] == b["t"][np.argmax(at_dock)]
+    assert m["duration_s"] == b["t"][-1] == 14400.0
+    assert m["updates"] == 14400 // 60 - 1                   # every 60 s after the first instant, before the end
+    assert m["active_updates"] == int(np.count_nonzero(
+        [b["tau"][b["t_shift"] == t - 10.0][0] < 0 for t in np.arange(60.0, 14400.0, 60.0)]))
+    assert m["success"] is bool(at_dock[-1] and b["tau"][-1] == 0.0)
+
+
+def test_bag_decisions_agree_with_the_in_process_governor(predictor):
+    """The bag was recorded on another processor: the in-process conventional TSG, given each
+    recorded update state (deputy, time, previous shift), answers what the bag's governor did to
+    within the window where Verify switches between feasible and infeasible (SPEC §5, §10: within
+    +-0.2 s of the answer), and the in-process mission from the same start keeps the same
+    contract: tau_0 within that window, docked, no violation. Whole trajectories are compared
+    nowhere: a last-bit difference sends the closed loop another way (a 1-cm change of the start
+    moved tau by 1.8 s and Delta-V by 16 %, measured)."""
     from cikan_ros.analysis.report import run_from_bag
     from cikan_ros.governor import ConventionalGovernor
     from cikan_ros.mission import nominal_start, run_mission
 
-    run, from_bag = run_from_bag(BAG)
-    offline = run_mission(ConventionalGovernor(predictor), nominal_start(predictor))
-    in_process = offline.metrics()
-    np.testing.assert_array_equal(run.tau, offline.tau)
-    for key, value in in_process.items():
-        if key in TIMING:
+    window = 0.2
+    b = _bag_record(BAG)
+    checked = 0
+    for t in np.arange(60.0, 14400.0, 60.0):
+        tau_prev, tau = b["tau"][b["t_shift"] == t - 10.0][0], b["tau"][b["t_shift"] == t][0]
+        if tau_prev == 0.0:
             continue
-        if isinstance(value, float) and key not in ("tau0_s", "t_tau_zero_s", "t_docked_s", "duration_s"):
-            # States cross the bag in metres: ~1e-16 relative of 7000 km is ~1e-9 m absolute.
-            tol = 1e-6 if key.endswith(("_m", "_mps")) else 1e-9
-            assert from_bag[key] == pytest.approx(value, rel=1e-9, abs=tol), key
-        else:
-            assert from_bag[key] == value, key
+        x = b["x_d"][b["t"] == t][0] * 1e-3                  # km, km/s
+        mine, _ = predictor.optimal_shift(x, float(t), float(tau_prev))
+        assert tau_prev <= mine <= 0.0 and abs(mine - tau) <= window, (t, tau_prev, tau, mine)
+        checked += 1
+    assert checked == run_from_bag(BAG)[1]["active_updates"] > 10
+    offline = run_mission(ConventionalGovernor(predictor), nominal_start(predictor)).metrics()
+    assert abs(offline["tau0_s"] - b["tau"][0]) <= window
+    assert offline["success"] and offline["violations"] == 0
 
 
 def test_bag_carries_its_configuration_and_governor():

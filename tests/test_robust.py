@@ -9,7 +9,7 @@ import sys
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from cikan_ros.config import control_config, load_config, truth_overrides
@@ -135,7 +135,7 @@ def test_j2_gradient_bound(r, lat, lon):
 LOW_GAIN = {"control.r_diag": [1e7] * 3}
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=150, deadline=None)  # checked states: about as many as 300 draws gave before
 @given(nu=st.floats(0.0, 2 * math.pi), behind_m=st.sampled_from([0.0, 0.5, 2.0, 4.0, 10.0]),
        dp_m=st.floats(0.0, 1.0), dv_frac=st.floats(0.0, 1.0),
        dirs=st.lists(st.floats(-1.0, 1.0), min_size=6, max_size=6).filter(
@@ -157,9 +157,10 @@ def test_robust_terminal_set_holds_the_loop_it_lets_go(nu, behind_m, dp_m, dv_fr
     d = np.asarray(dirs)
     e = np.concatenate([d[:3] / np.linalg.norm(d[:3]) * dp_m * 1e-3,
                         d[3:] / np.linalg.norm(d[3:]) * dv_frac ** 2 * 1e-4])
-    if not robust_terminal_ok(x_v, x_c, pred.cparams, pred.rparams, dp_m * 1e-3, dv_frac ** 2 * 1e-4,
-                              0.0, 0.0, True, cfg.tsg.sample_period_s):
-        return
+    # Only states it accepts are checked: assume() makes Hypothesis draw others instead (about
+    # half are accepted) and fail the test, not pass it, when it finds too few to check.
+    assume(robust_terminal_ok(x_v, x_c, pred.cparams, pred.rparams, dp_m * 1e-3, dv_frac ** 2 * 1e-4,
+                              0.0, 0.0, True, cfg.tsg.sample_period_s))
     phi, _, _ = loop_at(nu, np.eye(3), cfg)
     cp = pred.cparams
     for _ in range(2000):

@@ -109,7 +109,8 @@ def test_feasibility_is_not_monotone_near_the_boundary(predictor):
 
 def test_h3_binds_under_a_stricter_configuration():
     """gamma2 = 0.01 /s, gamma3 = 1e-3 km/s (found by measurement): the unconstrained approach would
-    violate h3, the TSG keeps it <= 0 and the margin becomes active; the nominal mission still docks."""
+    violate h3, the TSG keeps it <= 0 (to the plant's tolerance) and the margin becomes active; the
+    nominal mission still docks."""
     strict = load_config(**{"constraints.gamma2_per_s": 0.01, "constraints.gamma3_kmps": 1e-3})
     # The default mission's plant trajectory violates the strict h3 ...
     default = _mission(0)
@@ -117,10 +118,13 @@ def test_h3_binds_under_a_stricter_configuration():
     p, v = np.linalg.norm(rel[:, :3], axis=1), np.linalg.norm(rel[:, 3:], axis=1)
     assert np.any((p <= 5.0) & (v - 0.01 * p - 1e-3 > 0))
     # ... while the TSG under the strict configuration keeps it, with h3 active.
+    # The closed loop rides the h3 boundary: its worst margin lies within rounding of 0 (measured
+    # -1.1e-9 km/s on one processor), on a side that differs between processors, so it is
+    # asserted against the plant's tolerance, not its sign.
     gov = ConventionalGovernor.from_config(strict)
     m = run_mission(gov, nominal_start(gov.predictor)).metrics()
     assert m["success"] and m["violations"] == 0
-    assert -1e-6 < m["max_h3"] <= 0.0
+    assert -1e-6 < m["max_h3"] <= strict.constraints.plant_h3_tolerance_kmps
     # Verify rejects, on h3 alone, answers of the default governor at some states of its mission.
     pred_default = Predictor.from_config(load_config())
     rejected = 0
