@@ -150,7 +150,6 @@ def warm_up(governor: Governor, x_d: ArrayLike, x_c: ArrayLike, t: float = 0.0) 
         tau0 = pred.side * max(abs(governor.initial(x_d, x_c, t).tau_s), pred.config.tsg.tolerance_s)
     except NoFeasibleShiftError:  # robust Verify may refuse this state: the kernels compiled anyway
         tau0 = pred.side * 10.0
-    governor.anchor.current = pred  # the warm-up's anchoring is not part of any mission
     t1 = t + pred.config.tsg.update_period_s
     # Every kernel entry point a decision may take (the update itself may take only one path).
     pred.verify(x_d, t1, tau0)
@@ -158,5 +157,9 @@ def warm_up(governor: Governor, x_d: ArrayLike, x_c: ArrayLike, t: float = 0.0) 
     pred.first_feasible(x_d, t1, [0.0], tau0, 1)
     pred.optimal_shift(x_d, t1, tau0)
     governor.update(x_d, x_c, t1, tau0)
+    # The warm-up's anchoring is part of no mission: x_c is not the chief at t1, so the update
+    # re-anchored on it; a governor left so flew its mission on that osculating orbit, not the
+    # configured one (GEO: another first shift than the offline loop's).
+    governor.anchor.reset()
     gc.collect()
     gc.freeze()

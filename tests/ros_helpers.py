@@ -1,5 +1,6 @@
 """Helpers of the ROS tests: an isolated domain per test, a test-side rclpy node spinning in a
-thread, and bag reading with the independent readers (rosbags, mcap)."""
+thread, hooks that act on a running graph at a given step (kill a node, set a parameter), and
+bag reading with the independent readers (rosbags, mcap)."""
 
 from __future__ import annotations
 
@@ -7,9 +8,10 @@ import contextlib
 import os
 import tempfile
 import threading
+import time
 from collections import defaultdict
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
 import numpy as np
 import pytest
@@ -108,6 +110,69 @@ class TestNode:
         self.thread.join(timeout=5)
 
 
+def wait_until(pred: Callable[[], Any], timeout: float = 60.0, what: str = "condition") -> Any:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        value = pred()
+        if value:
+            return value
+        time.sleep(0.005)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def watcher(domain: int) -> TestNode:
+    """A started test node that keeps every /deputy/odom it hears (the mission's progress)."""
+    from nav_msgs.msg import Odometry
+
+    from cikan_ros.ros.graph import QOS_STREAM
+
+    node = TestNode("fault_watcher", domain)
+    node.subscribe("/deputy/odom", Odometry, QOS_STREAM)
+    return node.start()
+
+
+def at_step(node: TestNode, k: int, action: Callable[[Any], None]) -> Callable[[Any], None]:
+    """on_started hook of ``run_ros_mission``: ``action(graph)`` in a thread once the watcher has
+    seen k deputy states (never, if it does not: the test's own assertions then show it)."""
+    def hook(graph: Any) -> None:
+        def run() -> None:
+            try:
+                wait_until(lambda: len(node.messages("/deputy/odom")) >= k, 120.0, f"step {k}")
+            except AssertionError:
+                return
+            action(graph)
+        threading.Thread(target=run, daemon=True).start()
+    return hook
+
+
+def kill_at_step(node: TestNode, name: str, k: int) -> Callable[[Any], None]:
+    """on_started hook: SIGKILL the named node once the watcher has seen k deputy states."""
+    return at_step(node, k, lambda graph: graph.procs[name].kill())
+
+
+def set_in_flight(node: TestNode, service: str, name: str, values: list[Any], k: int,
+                  results: list[Any]) -> Callable[[Any], None]:
+    """on_started hook: once the watcher has seen k deputy states, set the parameter ``name`` to
+    each of ``values`` in turn through ``service`` (a SetParameters service); each result, or
+    the exception that stopped it, is appended to ``results``."""
+    from rcl_interfaces.srv import SetParameters
+    from rclpy.parameter import Parameter
+
+    client = node.node.create_client(SetParameters, service)
+
+    def set_all(_graph: Any) -> None:
+        try:
+            assert client.wait_for_service(timeout_sec=60.0), f"no service {service}"
+            for value in values:
+                future = client.call_async(SetParameters.Request(
+                    parameters=[Parameter(name, value=value).to_parameter_msg()]))
+                wait_until(future.done, 120.0, service)
+                results.append(future.result().results[0])
+        except Exception as exc:  # reported by the test, not lost in the thread
+            results.append(exc)
+    return at_step(node, k, set_all)
+
+
 def rosbags_messages(bag: Path) -> dict[str, list[tuple[int, Any]]]:
     """{topic: [(log_time, decoded msg)]} read by rosbags' AnyReader (with the bag's schemas)."""
     from rosbags.highlevel import AnyReader
@@ -166,6 +231,29 @@ def sim_steps(msgs: dict[str, list[tuple[int, Any]]]) -> dict[int, dict[str, str
             if st.name == "sim_node" and v.get("event") == "step":
                 out[int(v["k"])] = v
     return out
+
+
+def diagnostics(msgs: dict, node: str, event: str) -> list[tuple[int, dict[str, str], Any]]:
+    """(stamp, values, status) of a node's /diagnostics records of one event, in bag order."""
+    return [(stamp_ns(arr), {kv.key: kv.value for kv in st.values}, st) for _, arr in msgs["/diagnostics"]
+            for st in arr.status
+            if st.name == node and {kv.key: kv.value for kv in st.values}.get("event") == event]
+
+
+def commands_by_stamp(msgs: dict) -> dict[int, np.ndarray]:
+    """{stamp: first commanded acceleration (m/s^2)} of /deputy/accel_cmd."""
+    out: dict[int, np.ndarray] = {}
+    for _, m in msgs["/deputy/accel_cmd"]:
+        out.setdefault(stamp_ns(m), np.array([m.accel.linear.x, m.accel.linear.y, m.accel.linear.z]))
+    return out
+
+
+def controller_record(msgs: dict) -> tuple[dict[int, float], set[int], dict[int, float], dict[int, np.ndarray]]:
+    """What the controller had and did, from a bag: (the published shifts {stamp: tau}, the stamps
+    of the shifts it rejected as stale, its holds {stamp: tau held}, its commands {stamp: m/s^2})."""
+    stale = {s for s, _, st in diagnostics(msgs, "controller_node", "rejected") if "stale time shift" in st.message}
+    holds = {s: float(v["tau_s"]) for s, v, _ in diagnostics(msgs, "controller_node", "hold")}
+    return shifts(msgs), stale, holds, commands_by_stamp(msgs)
 
 
 def independent_check(x_d: np.ndarray, x_c: np.ndarray, alpha_deg: float = 20.0,

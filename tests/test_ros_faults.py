@@ -10,8 +10,6 @@ import os
 import signal
 import subprocess
 import sys
-import threading
-import time
 from pathlib import Path
 from typing import Any, Callable
 
@@ -23,57 +21,11 @@ from cikan_ros.config import load_config
 from cikan_ros.errors import CikanError, MissionError
 from cikan_ros.ros.graph import QOS_STREAM
 from cikan_ros.ros.launch import Graph, ros_environment, run_ros_mission, write_params
-from ros_helpers import (TestNode, independent_check, mcap_counts, ros_env, rosbags_messages, shifts,
-                         sim_steps, stamp_ns, states)
+from ros_helpers import (TestNode, commands_by_stamp, controller_record, diagnostics, independent_check,
+                         kill_at_step, mcap_counts, ros_env, rosbags_messages, set_in_flight, shifts, sim_steps,
+                         stamp_ns, states, wait_until, watcher)
 
 __all__ = ["ros_env"]
-
-
-def wait_until(pred: Callable[[], Any], timeout: float = 60.0, what: str = "condition") -> Any:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        value = pred()
-        if value:
-            return value
-        time.sleep(0.005)
-    raise AssertionError(f"timed out waiting for {what}")
-
-
-
-def watcher(domain: int) -> TestNode:
-    from nav_msgs.msg import Odometry
-
-    node = TestNode("fault_watcher", domain)
-    node.subscribe("/deputy/odom", Odometry, QOS_STREAM)
-    return node.start()
-
-
-def kill_at_step(node: TestNode, name: str, k: int) -> Callable[[Graph], None]:
-    """on_started hook: SIGKILL the named node once the watcher has seen k deputy states."""
-    def hook(graph: Graph) -> None:
-        def run() -> None:
-            try:
-                wait_until(lambda: len(node.messages("/deputy/odom")) >= k, 120.0, f"step {k}")
-            except AssertionError:
-                return  # the test's own assertions then show the node was never killed
-            graph.procs[name].kill()
-        threading.Thread(target=run, daemon=True).start()
-    return hook
-
-
-def diagnostics(msgs: dict, node: str, event: str) -> list[tuple[int, dict[str, str], Any]]:
-    """(stamp, values, status) of a node's /diagnostics records of one event, in bag order."""
-    return [(stamp_ns(arr), {kv.key: kv.value for kv in st.values}, st) for _, arr in msgs["/diagnostics"]
-            for st in arr.status
-            if st.name == node and {kv.key: kv.value for kv in st.values}.get("event") == event]
-
-
-def commands_by_stamp(msgs: dict) -> dict[int, np.ndarray]:
-    """{stamp: first commanded acceleration (m/s^2)} of /deputy/accel_cmd."""
-    out: dict[int, np.ndarray] = {}
-    for _, m in msgs["/deputy/accel_cmd"]:
-        out.setdefault(stamp_ns(m), np.array([m.accel.linear.x, m.accel.linear.y, m.accel.linear.z]))
-    return out
 
 
 def test_governor_killed_controller_holds_last_verified_shift(ros_env: int, tmp_path: Path) -> None:
@@ -96,10 +48,7 @@ def test_governor_killed_controller_holds_last_verified_shift(ros_env: int, tmp_
     msgs = rosbags_messages(tmp_path / "bag")
     loop = ClosedLoop(cached_predictor(cfg))
     tl = Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
-    published = shifts(msgs)
-    stale = {s for s, _, st in diagnostics(msgs, "controller_node", "rejected") if "stale time shift" in st.message}
-    holds = {s: float(v["tau_s"]) for s, v, _ in diagnostics(msgs, "controller_node", "hold")}
-    commands = commands_by_stamp(msgs)
+    published, stale, holds, commands = controller_record(msgs)
     stamps, x_d = states(msgs, "/deputy/odom")
     steps = sim_steps(msgs)
     # Steps before the controller's first command (a first message lost while the readers of a
@@ -353,31 +302,14 @@ def test_bad_messages_are_rejected_with_diagnostics(ros_env: int, tmp_path: Path
 def test_bad_model_is_refused_at_run_time_and_the_mission_goes_on(ros_env: int, tmp_path: Path) -> None:
     """Switching governor.name to a missing or corrupt model while flying: refused with the reason
     (SetParameters), the running governor stays, the mission completes."""
-    from rcl_interfaces.srv import SetParameters
-    from rclpy.parameter import Parameter
-
     corrupt = tmp_path / "corrupt"
     corrupt.mkdir()
     (corrupt / "card.json").write_text("{not json")
     (corrupt / "model.safetensors").write_bytes(b"\x00" * 64)
     node = watcher(ros_env)
-    client = node.node.create_client(SetParameters, "/governor_node/set_parameters")
     results: list[Any] = []
-
-    def hook(graph: Graph) -> None:
-        def run() -> None:
-            try:
-                assert client.wait_for_service(timeout_sec=60.0), "no parameter service"
-                wait_until(lambda: len(node.messages("/deputy/odom")) >= 5, 120.0, "step 5")
-                for value in (str(tmp_path / "missing"), str(corrupt)):
-                    request = SetParameters.Request(parameters=[
-                        Parameter("governor.name", value=value).to_parameter_msg()])
-                    future = client.call_async(request)
-                    wait_until(future.done, 30.0, "parameter service")
-                    results.append(future.result().results[0])
-            except Exception as exc:  # reported by the test, not lost in the thread
-                results.append(exc)
-        threading.Thread(target=run, daemon=True).start()
+    hook = set_in_flight(node, "/governor_node/set_parameters", "governor.name",
+                         [str(tmp_path / "missing"), str(corrupt)], 5, results)
     try:
         # Paced (24 s wall) so the refusals, which import torch in the governor, happen in flight.
         metrics = run_ros_mission(load_config(**{"mission.duration_s": 2400.0}), bag=tmp_path / "bag",

@@ -1,4 +1,5 @@
-"""recorder_node: records every topic of the graph, as received (raw CDR), to a rosbag2 MCAP bag.
+"""recorder_node: records the topics of ``recorder.topics`` (default: every topic of the graph), as
+received (raw CDR), to a rosbag2 MCAP bag.
 
 Messages are logged at their own stamp (header.stamp, or the Clock's time): the bag is a
 sim-time record in which the messages of step k share t_k, whatever their arrival order.
@@ -54,6 +55,7 @@ class RecorderNode(Node):
         utc = datetime.now(timezone.utc).strftime(UTC_FORMAT)
         self.bag_dir = Path(str(p["recorder.bag"]).replace("{utc}", utc))
         self.topics = [str(t) for t in p["recorder.topics"]]
+        self.recorded = set(self.topics)
         self.flush_period_s = float(p["recorder.flush_period_s"])
         self.chunk_bytes = int(p["recorder.chunk_bytes"])
         self.drain_s = float(p["recorder.drain_s"])
@@ -78,10 +80,13 @@ class RecorderNode(Node):
         """Create the bag and subscribe (called once the node's parameters are checked)."""
         self.bag = BagWriter(self.bag_dir, self.chunk_bytes,
                              {"cikan_ros.config": json.dumps(self.cfg.flat(), sort_keys=True)})
+        # As a peer of the graph it reads every topic: the other peers wait for it as a reader of
+        # each (graph.required_readers) before they are ready; it writes recorder.topics.
+        read = list(TOPIC_TYPES) if "recorder" in self.peers else self.topics
         subs = [self.readiness.subscription(message_class(TOPIC_TYPES[topic]), topic,
                                             lambda data, t=topic: self.on_message(t, data), QOS_RECORD,
                                             raw=True)
-                for topic in self.topics]
+                for topic in read]
         self.create_subscription(DiagnosticStatus, GOVERNOR_INFO, self.on_governor, QOS_LATCHED)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(self.flush_period_s, self.bag.flush, clock=steady)
@@ -107,6 +112,8 @@ class RecorderNode(Node):
 
     def on_message(self, topic: str, data: bytes) -> None:
         self.last_message = time.monotonic()
+        if topic not in self.recorded:
+            return
         if topic not in self.bag.channels:
             qos = [qos_dict(info.qos_profile) for info in self.get_publishers_info_by_topic(topic)]
             self.bag.add_topic(topic, TOPIC_TYPES[topic], qos)
