@@ -5,7 +5,7 @@ when its governor raises mid-mission (it holds the last verified shift)."""
 import sys
 
 import governor_node.node as node
-from cikan_ros.governor import make_governor
+from cikan_ros.registry import make_governor
 
 FAILING_FROM_S = float(sys.argv[1])
 

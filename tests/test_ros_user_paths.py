@@ -21,9 +21,9 @@ import yaml
 
 from cikan_ros.config import load_config
 from cikan_ros.governor import (PATH_AUDIT, PATH_BISECT, PATH_INITIAL, PATH_KEEP, PATH_NN, PATH_NN_BISECT,
-                                PATH_PROBE, PATH_SEARCH, PATH_STALL, PATH_VERIFY_ZERO, PATH_ZERO,
-                                make_governor, warm_up)
+                                PATH_PROBE, PATH_SEARCH, PATH_STALL, PATH_VERIFY_ZERO, PATH_ZERO, warm_up)
 from cikan_ros.mission import ClosedLoop, nominal_start, run_mission
+from cikan_ros.registry import make_governor
 from cikan_ros.ros.convert import Timeline
 from cikan_ros.ros.graph import PATH_HOLD, cached_predictor
 from cikan_ros.ros.launch import NODE_MODULES, Graph, ros_environment, run_ros_mission, write_params

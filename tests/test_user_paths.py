@@ -19,7 +19,7 @@ import pytest
 
 from cikan_ros.cli import main
 from cikan_ros.config import load_config
-from cikan_ros.governor import make_governor
+from cikan_ros.registry import make_governor
 from cikan_ros.learn.modelfile import MODELS_DIR
 from cikan_ros.mission import run_mission, sample_start
 from cikan_ros.tsg import Predictor
