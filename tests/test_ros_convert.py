@@ -14,8 +14,10 @@ from rclpy.serialization import deserialize_message, serialize_message
 from cikan_ros.config import load_config
 from cikan_ros.errors import ConfigError
 from cikan_ros.ros import convert as cv
-from cikan_ros.ros.bag import BagWriter, qos_dict, schema_text, type_hash
-from cikan_ros.ros.graph import QOS_STREAM, declare_config, parameter_descriptions
+from cikan_ros.ros.bag_writer import BagWriter, qos_dict, schema_text, type_hash
+from cikan_ros.ros.graph import QOS_PROFILES, QOS_STREAM, qos_for
+from cikan_ros.ros.graph_spec import QOS_KINDS, TOPICS
+from cikan_ros.ros.params import declare_config, parameter_descriptions
 from cikan_ros.units import ns_to_seconds, seconds_to_ns, through_si
 from ros_helpers import ros_env
 
@@ -124,6 +126,18 @@ def test_qos_profile_in_rosbag2_v9_form() -> None:
                                                                             "volatile")
     assert d["deadline"] == d["lifespan"] == {"sec": 0, "nsec": 0}   # rclpy's "default" durations
     assert d["liveliness"] == "system_default" and d["avoid_ros_namespace_conventions"] is False
+
+
+def test_every_qos_kind_of_the_topic_table_has_its_profile() -> None:
+    """The table names kinds, graph builds them: the streams deep and volatile, the announcements
+    latched (a reader that joins later gets the last one)."""
+    from rclpy.qos import DurabilityPolicy
+
+    assert set(QOS_PROFILES) == set(QOS_KINDS) == {t.qos for t in TOPICS.values()}
+    for name, topic in TOPICS.items():
+        durability = qos_for(name).durability
+        assert durability == (DurabilityPolicy.TRANSIENT_LOCAL if topic.qos == "latched" else DurabilityPolicy.VOLATILE)
+    assert qos_for("/tsg/governor").depth == 1 and qos_for("/tsg/time_shift").depth == 4000
 
 
 def test_bag_writer_flushed_bag_survives_a_crash(tmp_path: Path) -> None:

@@ -1,4 +1,6 @@
-"""rosbag2 bag directories (metadata.yaml version 9 + one MCAP file) written from raw CDR bytes.
+"""The bag writer: rosbag2 bag directories (metadata.yaml version 9 + one MCAP file) written from
+raw CDR bytes, by the recorder (:mod:`cikan_ros.ros.recorder_node`) and by tests. Reading a bag
+back: :mod:`cikan_ros.ros.bag_reader`.
 
 What rosbag2 itself writes and what independent readers (rosbags, mcap, Foxglove) expect:
 profile ``ros2``; one schema per type, encoding ``ros2msg``, text = the installed .msg file
