@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from rclpy.serialization import deserialize_message, serialize_message
 
 from cikan_ros.config import load_config
@@ -164,6 +165,36 @@ def test_bag_writer_flushed_bag_survives_a_crash(tmp_path: Path) -> None:
             assert sorted(m.log_time // 10**9 for _, _, m in make_reader(f).iter_messages()) == expected
     with pytest.raises(FileExistsError):
         BagWriter(bag)
+
+
+def test_bag_writer_as_a_context_manager_closes_the_bag_on_an_exception(tmp_path: Path) -> None:
+    """``with BagWriter(...)``: an exception inside the block leaves a closed, complete bag of what
+    was written (no flush asked for), read back with rosbags and mcap; the exception propagates."""
+    from mcap.reader import make_reader
+    from rosbags.highlevel import AnyReader
+
+    bag = tmp_path / "bag"
+
+    class Stop(Exception):
+        pass
+
+    with pytest.raises(Stop):
+        with BagWriter(bag) as writer:
+            writer.add_topic("/clock", "rosgraph_msgs/msg/Clock", [qos_dict(QOS_STREAM)])
+            for i in (1, 2, 3):
+                writer.write("/clock", serialize_message(cv.clock_msg(i * 10**9)), i * 10**9)
+            raise Stop
+    assert writer.closed
+    with AnyReader([bag]) as reader:
+        assert [t for _, t, _ in reader.messages()] == [10**9, 2 * 10**9, 3 * 10**9]
+    with open(next(bag.glob("*.mcap")), "rb") as f:
+        summary = make_reader(f).get_summary()
+        assert summary is not None and summary.statistics.message_count == 3   # the full summary
+    meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert meta["message_count"] == 3 and meta["duration"]["nanoseconds"] == 2 * 10**9
+    with BagWriter(tmp_path / "empty") as empty:   # and a block that ends normally
+        pass
+    assert empty.closed and (tmp_path / "empty" / "metadata.yaml").exists()
 
 
 def test_parameters_declared_with_descriptions_and_validated(ros_env: int) -> None:
