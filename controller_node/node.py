@@ -26,10 +26,11 @@ from sensor_msgs.msg import TimeReference
 
 from cikan_ros.mission import ClosedLoop
 from cikan_ros.ros import convert as cv
-from cikan_ros.ros.graph import (PATH_HOLD, ACCEL_CMD, CHIEF_ODOM, DEPUTY_ODOM, DIAGNOSTICS, QOS_STREAM,
-                                 TIME_SHIFT, Readiness, cached_predictor, declare_config, qos_for,
-                                 required_publishers, required_readers, run_node)
-from cikan_ros.ros.params import NodeSpec, declare_parameters
+from cikan_ros.ros.graph import QOS_STREAM, Readiness, qos_for, run_node
+from cikan_ros.ros.graph_spec import (PATH_HOLD, ACCEL_CMD, CHIEF_ODOM, DEPUTY_ODOM, DIAGNOSTICS, TIME_SHIFT,
+                                      required_publishers, required_readers)
+from cikan_ros.ros.params import NodeSpec, declare_config, declare_parameters
+from cikan_ros.tsg import Predictor
 
 NAME = "controller_node"
 #: Parameters: the groups controller and graph of config/nodes.yaml, and the mission configuration.
@@ -47,7 +48,7 @@ class ControllerNode(Node):
         deadline = float(p["controller.tau_deadline_s"])
         lost = float(p["controller.lost_deadline_s"])
         peers, timeout = [str(n) for n in p["graph.peers"]], float(p["graph.startup_timeout_s"])
-        pred = cached_predictor(cfg)
+        pred = Predictor.from_config(cfg)
         self.loop = ClosedLoop(pred)
         x0 = pred.orbit.state(0.0)
         self.loop.command(0, 0.0, x0, x0)  # load the compiled kernels now (the anchor stays put)

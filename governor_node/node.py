@@ -26,11 +26,11 @@ from cikan_ros.governor import warm_up
 from cikan_ros.mission import ClosedLoop, nominal_start
 from cikan_ros.registry import make_governor
 from cikan_ros.ros import convert as cv
-from cikan_ros.ros.graph import (PATH_HOLD, CHIEF_ODOM, DEPUTY_ODOM, DIAGNOSTICS, GOVERNOR_INFO,
-                                 QOS_LATCHED, QOS_STREAM, TIME_SHIFT, Readiness, cached_predictor,
-                                 declare_config, qos_for, required_publishers, required_readers,
-                                 run_node)
-from cikan_ros.ros.params import NodeSpec, declare_parameters
+from cikan_ros.ros.graph import QOS_LATCHED, QOS_STREAM, Readiness, qos_for, run_node
+from cikan_ros.ros.graph_spec import (PATH_HOLD, CHIEF_ODOM, DEPUTY_ODOM, DIAGNOSTICS, GOVERNOR_INFO, TIME_SHIFT,
+                                      required_publishers, required_readers)
+from cikan_ros.ros.params import NodeSpec, declare_config, declare_parameters
+from cikan_ros.tsg import Predictor
 
 NAME = "governor_node"
 #: Parameters: the groups governor and graph of config/nodes.yaml, and the mission configuration.
@@ -47,7 +47,7 @@ class GovernorNode(Node):
         p = declare_parameters(self, SPEC)
         name = str(p["governor.name"])
         peers, timeout = [str(n) for n in p["graph.peers"]], float(p["graph.startup_timeout_s"])
-        self.predictor = cached_predictor(cfg)
+        self.predictor = Predictor.from_config(cfg)
         self.governor = make_governor(name, cfg, self.predictor)
         self.loop = ClosedLoop(self.predictor)
         self.warm_up(self.governor)

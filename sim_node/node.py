@@ -29,12 +29,12 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from cikan_ros.constraints import margins
 from cikan_ros.mission import ClosedLoop, nominal_start, sample_start
 from cikan_ros.ros import convert as cv
-from cikan_ros.ros.graph import (ACCEL_CMD, CHIEF_ODOM, CLOCK, DEPUTY_ODOM, DIAGNOSTICS, QOS_STREAM,
-                                 TRUTH_ACCEL, TRUTH_CHIEF, TRUTH_DEPUTY, PeerWatch, Readiness,
-                                 cached_predictor, declare_config, qos_for, required_publishers,
-                                 required_readers, run_node)
+from cikan_ros.ros.graph import QOS_STREAM, PeerWatch, Readiness, qos_for, run_node
+from cikan_ros.ros.graph_spec import (ACCEL_CMD, CHIEF_ODOM, CLOCK, DEPUTY_ODOM, DIAGNOSTICS, TRUTH_ACCEL,
+                                      TRUTH_CHIEF, TRUTH_DEPUTY, required_publishers, required_readers)
 from cikan_ros.truth import Truth
-from cikan_ros.ros.params import NodeSpec, declare_parameters
+from cikan_ros.ros.params import NodeSpec, declare_config, declare_parameters
+from cikan_ros.tsg import Predictor
 
 NAME = "sim_node"
 #: Parameters: the groups sim and graph of config/nodes.yaml, and the mission configuration.
@@ -55,7 +55,7 @@ class SimNode(Node):
         self.max_rtf = float(p["sim.max_rtf"])
         self.stop_on_dock = bool(p["sim.stop_on_dock"])
         peers, timeout = [str(n) for n in p["graph.peers"]], float(p["graph.startup_timeout_s"])
-        pred = cached_predictor(cfg)
+        pred = Predictor.from_config(cfg)
         self.x = nominal_start(pred) if seed < 0 else sample_start(pred, seed)
         self.timeline = cv.Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
         self.loop = ClosedLoop(pred)

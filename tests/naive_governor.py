@@ -13,7 +13,8 @@ from rclpy.node import Node
 from sensor_msgs.msg import TimeReference
 
 from cikan_ros.mission import Schedule, nominal_start
-from cikan_ros.ros.graph import QOS_STREAM, declare_config, run_node
+from cikan_ros.ros.graph import QOS_STREAM, run_node
+from cikan_ros.ros.params import declare_config
 from cikan_ros.tsg import Predictor
 
 

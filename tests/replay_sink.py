@@ -18,7 +18,7 @@ def main() -> int:
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
     from rclpy.task import Future
 
-    from cikan_ros.ros.graph import TIME_SHIFT, TOPIC_TYPES, message_class
+    from cikan_ros.ros.graph_spec import TIME_SHIFT, TOPIC_TYPES, message_class
 
     expected, timeout = int(sys.argv[1]), float(sys.argv[2])
     depth = int(sys.argv[3]) if len(sys.argv) > 3 else 0

@@ -97,7 +97,9 @@ def test_launch_file_defaults_are_the_launchers() -> None:
 
 def test_graph_spec_is_what_the_launcher_starts(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """The launcher's node modules, the executables' console scripts, and the parameters it writes."""
-    assert launch.NODE_MODULES == {n.name: n.module for n in graph_spec.NODES}
+    graph = launch.Graph(tmp_path, {}, tmp_path / "params.yaml")
+    for n in graph_spec.NODES:   # each node runs its module: python -m MODULE --ros-args --params-file FILE
+        assert graph.argv(n.name)[1:3] == ["-m", n.module]
     scripts = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"]
     for n in graph_spec.NODES:
         assert scripts[n.executable].split(":")[0] in (n.module, f"{n.module}.node")

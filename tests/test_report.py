@@ -6,6 +6,8 @@ from __future__ import annotations
 import json
 import math
 import shutil
+import subprocess
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -299,6 +301,18 @@ def test_bag_metrics_are_what_the_bag_records():
     assert m["success"] is bool(at_dock[-1] and b["tau"][-1] == 0.0)
 
 
+def test_report_on_a_bag_does_not_import_rclpy(tmp_path):
+    """`cikan report BAG` (the bag reader, the rebuilt run and its metrics) in a fresh interpreter
+    never imports rclpy: a bag is read without a ROS graph's runtime."""
+    code = ("import sys\nfrom cikan_ros.cli import main\n"
+            f"rc = main(['report', {str(BAG)!r}, '--out', {str(tmp_path)!r}, '--tables-only'])\n"
+            "print('rclpy loaded:', 'rclpy' in sys.modules)\nsys.exit(rc)")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr
+    assert "rclpy loaded: False" in run.stdout
+    assert "| success | True |" in (tmp_path / "report.md").read_text()
+
+
 def test_bag_decisions_agree_with_the_in_process_governor(predictor):
     """The bag was recorded on another processor: the in-process conventional TSG, given each
     recorded update state (deputy, time, previous shift), answers what the bag's governor did to
@@ -330,7 +344,7 @@ def test_bag_decisions_agree_with_the_in_process_governor(predictor):
 
 def test_bag_carries_its_configuration_and_governor():
     """The recorder stores the mission's configuration and governor in metadata.yaml custom_data."""
-    from cikan_ros.analysis.report import bag_config, bag_governor
+    from cikan_ros.ros.bag_reader import bag_config, bag_governor
     from cikan_ros.config import load_config
 
     assert bag_config(BAG, None) == load_config()
@@ -343,8 +357,8 @@ def test_metrics_from_the_typed_topics_alone(tmp_path, cfg):
     import yaml
     from mcap.reader import make_reader
 
-    from cikan_ros.ros.bag import BagWriter
-    from cikan_ros.ros.record import recorded_metrics
+    from cikan_ros.ros.bag_writer import BagWriter
+    from cikan_ros.ros.bag_reader import recorded_metrics
 
     typed = tmp_path / "typed"
     writer = BagWriter(typed)

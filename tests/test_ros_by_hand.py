@@ -15,7 +15,7 @@ import pytest
 import yaml
 
 from cikan_ros.config import load_config
-from cikan_ros.ros.record import mission_from_bag
+from cikan_ros.ros.bag_reader import mission_from_bag
 from ros_helpers import rosbags_messages, ros_env
 
 __all__ = ["ros_env"]

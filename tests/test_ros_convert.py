@@ -9,13 +9,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from rclpy.serialization import deserialize_message, serialize_message
 
 from cikan_ros.config import Side, load_config
 from cikan_ros.errors import ConfigError
 from cikan_ros.ros import convert as cv
-from cikan_ros.ros.bag import BagWriter, qos_dict, schema_text, type_hash
-from cikan_ros.ros.graph import QOS_STREAM, declare_config, parameter_descriptions
+from cikan_ros.ros.bag_writer import BagWriter, qos_dict, schema_text, type_hash
+from cikan_ros.ros.graph import QOS_PROFILES, QOS_STREAM, qos_for
+from cikan_ros.ros.graph_spec import QOS_KINDS, TOPICS
+from cikan_ros.ros.params import declare_config, parameter_descriptions
 from cikan_ros.units import ns_to_seconds, seconds_to_ns, through_si
 from ros_helpers import ros_env
 
@@ -131,6 +134,18 @@ def test_qos_profile_in_rosbag2_v9_form() -> None:
     assert d["liveliness"] == "system_default" and d["avoid_ros_namespace_conventions"] is False
 
 
+def test_every_qos_kind_of_the_topic_table_has_its_profile() -> None:
+    """The table names kinds, graph builds them: the streams deep and volatile, the announcements
+    latched (a reader that joins later gets the last one)."""
+    from rclpy.qos import DurabilityPolicy
+
+    assert set(QOS_PROFILES) == set(QOS_KINDS) == {t.qos for t in TOPICS.values()}
+    for name, topic in TOPICS.items():
+        durability = qos_for(name).durability
+        assert durability == (DurabilityPolicy.TRANSIENT_LOCAL if topic.qos == "latched" else DurabilityPolicy.VOLATILE)
+    assert qos_for("/tsg/governor").depth == 1 and qos_for("/tsg/time_shift").depth == 4000
+
+
 def test_bag_writer_flushed_bag_survives_a_crash(tmp_path: Path) -> None:
     """Files as a SIGKILL after a flush leaves them (copied before close) read with both readers;
     messages written out of stamp order are served in order."""
@@ -155,6 +170,36 @@ def test_bag_writer_flushed_bag_survives_a_crash(tmp_path: Path) -> None:
             assert sorted(m.log_time // 10**9 for _, _, m in make_reader(f).iter_messages()) == expected
     with pytest.raises(FileExistsError):
         BagWriter(bag)
+
+
+def test_bag_writer_as_a_context_manager_closes_the_bag_on_an_exception(tmp_path: Path) -> None:
+    """``with BagWriter(...)``: an exception inside the block leaves a closed, complete bag of what
+    was written (no flush asked for), read back with rosbags and mcap; the exception propagates."""
+    from mcap.reader import make_reader
+    from rosbags.highlevel import AnyReader
+
+    bag = tmp_path / "bag"
+
+    class Stop(Exception):
+        pass
+
+    with pytest.raises(Stop):
+        with BagWriter(bag) as writer:
+            writer.add_topic("/clock", "rosgraph_msgs/msg/Clock", [qos_dict(QOS_STREAM)])
+            for i in (1, 2, 3):
+                writer.write("/clock", serialize_message(cv.clock_msg(i * 10**9)), i * 10**9)
+            raise Stop
+    assert writer.closed
+    with AnyReader([bag]) as reader:
+        assert [t for _, t, _ in reader.messages()] == [10**9, 2 * 10**9, 3 * 10**9]
+    with open(next(bag.glob("*.mcap")), "rb") as f:
+        summary = make_reader(f).get_summary()
+        assert summary is not None and summary.statistics.message_count == 3   # the full summary
+    meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert meta["message_count"] == 3 and meta["duration"]["nanoseconds"] == 2 * 10**9
+    with BagWriter(tmp_path / "empty") as empty:   # and a block that ends normally
+        pass
+    assert empty.closed and (tmp_path / "empty" / "metadata.yaml").exists()
 
 
 def test_parameters_declared_with_descriptions_and_validated(ros_env: int) -> None:

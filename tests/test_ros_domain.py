@@ -18,7 +18,7 @@ import pytest
 
 from cikan_ros.errors import CikanError
 from cikan_ros.ros import domain as dom
-from cikan_ros.ros.record import check_messages, read_bag
+from cikan_ros.ros.bag_reader import check_messages, read_bag
 from ros_helpers import ros_env
 
 __all__ = ["ros_env"]

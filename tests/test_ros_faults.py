@@ -34,7 +34,7 @@ def test_governor_killed_controller_holds_last_verified_shift(ros_env: int, tmp_
     only holds; each command is the FTRE law toward the shift it names; the plant stays safe."""
     from cikan_ros.mission import ClosedLoop
     from cikan_ros.ros.convert import Timeline
-    from cikan_ros.ros.graph import cached_predictor
+    from cikan_ros.tsg import Predictor
 
     cfg = load_config(**{"mission.duration_s": 1200.0})
     node = watcher(ros_env)
@@ -46,7 +46,7 @@ def test_governor_killed_controller_holds_last_verified_shift(ros_env: int, tmp_
     assert metrics["ros"]["exit_codes"]["governor"] == -signal.SIGKILL
     assert metrics["ros"]["exit_codes"]["sim"] == 0          # the mission completed
     msgs = rosbags_messages(tmp_path / "bag")
-    loop = ClosedLoop(cached_predictor(cfg))
+    loop = ClosedLoop(Predictor.from_config(cfg))
     tl = Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
     published, stale, holds, commands = controller_record(msgs)
     stamps, x_d = states(msgs, "/deputy/odom")

@@ -13,7 +13,7 @@ import yaml
 from cikan_ros.config import load_config
 from cikan_ros.registry import GOVERNOR_NAMES, make_governor
 from cikan_ros.mission import nominal_start, run_mission
-from cikan_ros.ros.graph import cached_predictor
+from cikan_ros.tsg import Predictor
 from cikan_ros.ros.launch import run_ros_mission
 from ros_helpers import (independent_check, isolated_ros, mcap_counts, ros_env, rosbags_messages, shifts, sim_steps,
                          states)
@@ -42,7 +42,7 @@ def tau_history(msgs: dict, n: int, stamps: np.ndarray) -> np.ndarray:
 def test_lockstep_graph_equals_offline_loop(conventional: tuple[dict, Path]) -> None:
     metrics, bag = conventional
     cfg = load_config()
-    gov = make_governor("conventional", cfg, cached_predictor(cfg))
+    gov = make_governor("conventional", cfg, Predictor.from_config(cfg))
     offline = run_mission(gov, nominal_start(gov.predictor))
     msgs = rosbags_messages(bag)
     stamps, x_d = states(msgs, "/deputy/odom")
@@ -135,7 +135,7 @@ def _learned_mission(name: str, tmp_path: Path, scenario: str = "paper", approac
     assert not failed
     assert metrics["governor"] == name and metrics["success"]
     # the same governor offline: the same shifts
-    gov = make_governor(name, cfg, cached_predictor(cfg))
+    gov = make_governor(name, cfg, Predictor.from_config(cfg))
     offline = run_mission(gov, nominal_start(gov.predictor))
     stamps, _ = states(msgs, "/deputy/odom")
     np.testing.assert_array_equal(tau_history(msgs, len(stamps), stamps), offline.tau)
@@ -161,7 +161,7 @@ def test_realistic_truth_and_robust_verify_graph_equals_offline(tmp_path, ros_en
     cfg = load_config(**truth_overrides("realistic"), **{"tsg.robust": True})
     bag = tmp_path / "bag"
     metrics = run_ros_mission(cfg, governor="conventional", seed=2, bag=bag)
-    gov = make_governor("conventional", cfg, cached_predictor(cfg))
+    gov = make_governor("conventional", cfg, Predictor.from_config(cfg))
     offline = run_mission(gov, sample_start(gov.predictor, 2), 2)
     msgs = rosbags_messages(bag)
     stamps, seen = states(msgs, "/deputy/odom")

@@ -20,7 +20,7 @@ import pytest
 from cikan_ros.config import load_config
 from cikan_ros.errors import MissionError
 from cikan_ros.ros.launch import lockstep_verdict, recorded_steps, run_ros_mission
-from cikan_ros.ros.record import read_bag
+from cikan_ros.ros.bag_reader import read_bag
 from ros_helpers import ros_env, rosbags_messages, shifts
 
 __all__ = ["ros_env"]
@@ -123,7 +123,7 @@ def copy_bag(src: Path, dst: Path, keep: Any) -> None:
     import yaml
     from mcap.reader import make_reader
 
-    from cikan_ros.ros.bag import BagWriter
+    from cikan_ros.ros.bag_writer import BagWriter
 
     writer = BagWriter(dst)
     with open(next(src.glob("*.mcap")), "rb") as f:

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from cikan_ros.config import load_config
-from cikan_ros.ros.graph import TOPIC_TYPES, message_class
+from cikan_ros.ros.graph_spec import TOPIC_TYPES, message_class
 from cikan_ros.ros.launch import run_ros_mission
 from ros_helpers import TestNode, ros_env, rosbags_messages, stamp_ns
 

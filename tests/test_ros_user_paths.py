@@ -25,7 +25,8 @@ from cikan_ros.governor import (PATH_AUDIT, PATH_BISECT, PATH_INITIAL, PATH_KEEP
 from cikan_ros.mission import ClosedLoop, nominal_start, run_mission
 from cikan_ros.registry import make_governor
 from cikan_ros.ros.convert import Timeline
-from cikan_ros.ros.graph import PATH_HOLD, cached_predictor
+from cikan_ros.ros.graph_spec import PATH_HOLD
+from cikan_ros.tsg import Predictor
 from cikan_ros.ros.launch import NODE_MODULES, Graph, ros_environment, run_ros_mission, write_params
 from ros_helpers import (at_step, controller_record, diagnostics, independent_check, mcap_counts, ros_env,
                          rosbags_messages, set_in_flight, shifts, stamp_ns, states, watcher)
@@ -73,7 +74,7 @@ def test_governor_switched_while_flying(ros_env: int, tmp_path: Path) -> None:
     (switched,) = [s for s, _, _ in diagnostics(msgs, "governor_node", "switched")]
     updates = {s: v for s, v, _ in diagnostics(msgs, "governor_node", "update")}
     tl = Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
-    loop = ClosedLoop(cached_predictor(cfg))
+    loop = ClosedLoop(Predictor.from_config(cfg))
     before = {s: v for s, v in updates.items() if s <= switched}
     after = {s: v for s, v in updates.items() if s > switched}
     assert before and after, (switched, sorted(updates))
@@ -93,7 +94,7 @@ def test_governor_switched_while_flying(ros_env: int, tmp_path: Path) -> None:
             assert updates[s]["path"] == source[s] and float(updates[s]["tau_s"]) == published[s], k
     # The decisions after the switch are the cikan governor's on the states the graph flew
     # (a governor made and warmed up as the node makes one when switching).
-    gov = make_governor("cikan", cfg, cached_predictor(cfg))
+    gov = make_governor("cikan", cfg, Predictor.from_config(cfg))
     warm_up(gov, nominal_start(gov.predictor), gov.predictor.orbit.state(0.0))
     stamps, x_d = states(msgs, "/deputy/odom")
     _, x_c = states(msgs, "/chief/odom")
@@ -115,8 +116,8 @@ def test_a_governor_that_raises_is_held_at_its_last_verified_shift(ros_env: int,
     script = HERE / "raising_governor.py"
     metrics = run_ros_mission(cfg, bag=tmp_path / "bag", governor_exec=f"{sys.executable} {script} 300")
     assert metrics["ros"]["exit_codes"] == {"recorder": 0, "governor": 0, "controller": 0, "sim": 0}
-    offline = run_mission(make_governor("conventional", cfg, cached_predictor(cfg)),
-                          nominal_start(cached_predictor(cfg)))
+    offline = run_mission(make_governor("conventional", cfg, Predictor.from_config(cfg)),
+                          nominal_start(Predictor.from_config(cfg)))
     msgs = rosbags_messages(tmp_path / "bag")
     tl = Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
     published, source = shifts(msgs), sources(msgs)
@@ -159,7 +160,7 @@ def test_a_governor_that_misses_its_deadline_is_taken_back(ros_env: int, tmp_pat
         node.close()
     assert stopped and metrics["ros"]["exit_codes"] == {"recorder": 0, "governor": 0, "controller": 0, "sim": 0}
     msgs = rosbags_messages(tmp_path / "bag")
-    loop = ClosedLoop(cached_predictor(cfg))
+    loop = ClosedLoop(Predictor.from_config(cfg))
     tl = Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
     published, stale, holds, commands = controller_record(msgs)
     stamps, x_d = states(msgs, "/deputy/odom")
@@ -229,7 +230,7 @@ def test_geo_mission_as_a_graph_equals_the_offline_mission(ros_env: int, tmp_pat
     meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     flown = json.loads(meta["custom_data"]["cikan_ros.config"])
     assert flown["scenario.name"] == "geo" and flown["orbit.a_km"] == 42164.17
-    pred = cached_predictor(cfg)
+    pred = Predictor.from_config(cfg)
     offline = run_mission(make_governor("conventional", cfg, pred), nominal_start(pred))
     msgs = rosbags_messages(bag)
     stamps, x_d = states(msgs, "/truth/deputy/odom")

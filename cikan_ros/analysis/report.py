@@ -12,7 +12,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from ..config import Config, config_from_flat, load_config
+from ..config import Config
 from ..errors import CikanError
 from ..montecarlo import load_run_arrays, summarise
 from .figures import RunData, all_figures, constraint_histories, mean_tau
@@ -32,28 +32,9 @@ def is_bag(path: Path) -> bool:
     return (path / "metadata.yaml").exists()
 
 
-def bag_config(path: Path, fallback: Config | None) -> Config:
-    """The configuration a bag was recorded with (metadata custom_data), else ``fallback``."""
-    import yaml
-
-    meta = yaml.safe_load((path / "metadata.yaml").read_text()) or {}
-    custom = (meta.get("rosbag2_bagfile_information") or {}).get("custom_data") or {}
-    if "cikan_ros.config" in custom:
-        return config_from_flat(json.loads(custom["cikan_ros.config"]))
-    return fallback or load_config()
-
-
-def bag_governor(path: Path) -> str:
-    import yaml
-
-    meta = yaml.safe_load((path / "metadata.yaml").read_text()) or {}
-    custom = (meta.get("rosbag2_bagfile_information") or {}).get("custom_data") or {}
-    return custom.get("cikan_ros.governor", path.name.split("_", 1)[-1])
-
-
 def run_from_bag(path: Path, cfg: Config | None = None) -> tuple[RunData, dict[str, Any]]:
     """A bag's run history and its metrics (computed by MissionResult.metrics)."""
-    from ..ros.record import recorded_metrics
+    from ..ros.bag_reader import bag_config, bag_governor, recorded_metrics
 
     config = bag_config(path, cfg)
     gov = bag_governor(path)

@@ -1,5 +1,7 @@
-"""The ROS 2 side of cikan_ros: message conversions, topics and QoS, nodes' shared plumbing,
-node parameters, the MCAP recorder, replay, the graph definition and its launcher.
+"""The ROS 2 side of cikan_ros: message conversions (``convert``), the graph as data (topics,
+nodes, arguments: ``graph_spec``, no rclpy), what the node processes share at run time (QoS,
+readiness, executor: ``graph``), node parameters (``params``), bags (``bag_reader``, no rclpy;
+``bag_writer``; the recorder node ``recorder_node``), replay, and the graph launcher (``launch``).
 
 Everything that imports rclpy lives here (and in the node packages ``sim_node``,
 ``governor_node``, ``controller_node``); the rest of the library runs without ROS.

@@ -1,5 +1,8 @@
-"""What every node of the graph shares: topic names and QoS, parameters, the cached predictor,
-readiness, the executor and the Jazzy shutdown pattern.
+"""What every node process of the graph shares at run time: the QoS profiles of the topic table's
+kinds, readiness (:class:`Readiness`, :class:`PeerWatch`), the executor, the acknowledgement wait
+and the Jazzy shutdown pattern (:func:`run_node`). The topics themselves (names, types, who
+writes and reads each) are plain data in :mod:`cikan_ros.ros.graph_spec`; node parameters are
+declared from data by :mod:`cikan_ros.ros.params` (``config/nodes.yaml``).
 
 QoS, chosen on purpose:
 
@@ -20,94 +23,31 @@ QoS, chosen on purpose:
   deeper (:data:`QOS_READY_READER`): one reader history holds every writer's announcement.
 - ``/tsg/governor`` (the governor's announcement of which governor flies): RELIABLE,
   TRANSIENT_LOCAL, depth 1, so a recorder that joins later still hears the last one.
-
-Node parameters are declared from data (:mod:`cikan_ros.ros.params`, ``config/nodes.yaml``);
-:func:`declare` declares one that is not in that file.
 """
 
 from __future__ import annotations
 
-import array
 import os
-import re
+import sys
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
-import numpy as np
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from ..config import DEFAULT_CONFIG_PATH, Config, config_from_flat, load_config
-from ..tsg import Predictor
+from ..errors import CikanError, ConfigError
+from .graph_spec import (CHIEF_ODOM, DEPUTY_ODOM, EXIT_BAD_INPUT, EXIT_NO_PEERS, READY, TIME_SHIFT, TOPICS,
+                         expected_readers, expected_writers)
+from .params import command_line_names, parse_node_args, plain, ros_section, unknown_overrides
 
-# -- topics -------------------------------------------------------------------------------------
-CLOCK = "/clock"
-CHIEF_ODOM = "/chief/odom"
-DEPUTY_ODOM = "/deputy/odom"
-TIME_SHIFT = "/tsg/time_shift"
-ACCEL_CMD = "/deputy/accel_cmd"
-DIAGNOSTICS = "/diagnostics"
-#: The governor announces which governor flies (diagnostic_msgs/DiagnosticStatus, latched).
-GOVERNOR_INFO = "/tsg/governor"
-#: The truth (the simulator's own states and the thrust as applied), for the record only: the
-#: governor and the controller read the measured states above.
-TRUTH_CHIEF = "/truth/chief/odom"
-TRUTH_DEPUTY = "/truth/deputy/odom"
-TRUTH_ACCEL = "/truth/deputy/accel"
-
-#: The readiness handshake (README, "Start"): each peer announces itself here once it is ready
-#: (diagnostic_msgs/DiagnosticStatus, name = peer, message "ready", hardware_id = node name;
-#: latched). The simulator starts the lockstep once every peer of ``graph.peers`` is ready.
-READY = "/graph/ready"
-
-#: Topic -> ROS type name of every topic of the graph.
-TOPIC_TYPES: dict[str, str] = {
-    CLOCK: "rosgraph_msgs/msg/Clock",
-    CHIEF_ODOM: "nav_msgs/msg/Odometry",
-    DEPUTY_ODOM: "nav_msgs/msg/Odometry",
-    TIME_SHIFT: "sensor_msgs/msg/TimeReference",
-    ACCEL_CMD: "geometry_msgs/msg/AccelStamped",
-    DIAGNOSTICS: "diagnostic_msgs/msg/DiagnosticArray",
-    TRUTH_CHIEF: "nav_msgs/msg/Odometry",
-    TRUTH_DEPUTY: "nav_msgs/msg/Odometry",
-    TRUTH_ACCEL: "geometry_msgs/msg/AccelStamped",
-}
-
-#: Which nodes read a topic (the recorder reads all): what a publisher waits for before starting.
-#: /clock readers are not awaited: rclpy's use_sim_time subscription is an implementation detail.
-#: The governor is not a required reader of the states: a governor may read only /deputy/odom
-#: (the simulator waits for it through the readiness handshake, :class:`PeerWatch`).
-CONSUMERS: dict[str, tuple[str, ...]] = {
-    CLOCK: (),
-    CHIEF_ODOM: ("controller",),
-    DEPUTY_ODOM: ("controller",),
-    TIME_SHIFT: ("controller",),
-    ACCEL_CMD: ("sim",),
-    DIAGNOSTICS: (),
-    TRUTH_CHIEF: (),
-    TRUTH_DEPUTY: (),
-    TRUTH_ACCEL: (),
-    READY: ("sim",),
-}
-
-#: Which peers publish a topic: what a subscription waits for (reader side) before its node is ready.
-PRODUCERS: dict[str, tuple[str, ...]] = {
-    CLOCK: ("sim",), CHIEF_ODOM: ("sim",), DEPUTY_ODOM: ("sim",), TRUTH_CHIEF: ("sim",),
-    TRUTH_DEPUTY: ("sim",), TRUTH_ACCEL: ("sim",), TIME_SHIFT: ("governor",), ACCEL_CMD: ("controller",),
-    DIAGNOSTICS: ("sim", "governor", "controller"),
-}
-
-#: /tsg/time_shift source when no decision was made at this step: the last verified shift holds.
-PATH_HOLD = "hold"
-
+# -- QoS ----------------------------------------------------------------------------------------
 QOS_STREAM = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=4000,
                         reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
-QOS_RECORD = QOS_STREAM
 #: /tsg/governor: the last announcement reaches readers that join later (transient local, depth 1).
 QOS_LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
-
+#: The profile of each QoS kind of the topic table (:data:`cikan_ros.ros.graph_spec.QOS_KINDS`).
+QOS_PROFILES: dict[str, QoSProfile] = {"stream": QOS_STREAM, "latched": QOS_LATCHED}
 
 #: The reader of /graph/ready: transient local like its writers, but deep. A keyless topic's
 #: reader history is shared by all writers, so at depth 1 a peer's announcement that arrives
@@ -117,102 +57,9 @@ QOS_READY_READER = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=64, reliabi
 
 
 def qos_for(topic: str) -> QoSProfile:
-    """The QoS a node of the graph offers or requests on ``topic`` (the same for all, see above)."""
-    return QOS_STREAM
-
-
-def message_class(type_name: str) -> type:
-    """The Python class of a ROS type name such as ``nav_msgs/msg/Odometry``."""
-    import importlib
-
-    pkg, kind, name = type_name.split("/")
-    return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
-
-
-def required_readers(topic: str, peers: Iterable[str]) -> int:
-    """How many readers ``topic`` has in a graph made of ``peers`` (node names)."""
-    peers = set(peers)
-    return sum(1 for n in CONSUMERS[topic] if n in peers) + (1 if "recorder" in peers else 0)
-
-
-def required_publishers(topic: str, peers: Iterable[str]) -> int:
-    """How many publishers a reader of ``topic`` waits for in a graph made of ``peers``: one if any
-    of its producers is a peer (the governor's /diagnostics, optional in the contract, is not awaited)."""
-    peers = set(peers)
-    producers = [n for n in PRODUCERS.get(topic, ()) if n in peers and not (topic == DIAGNOSTICS and n == "governor")]
-    return 1 if producers else 0
-
-
-# -- parameters ---------------------------------------------------------------------------------
-_COMMENT = re.compile(r"^(\s*)([A-Za-z_]\w*):\s*(.*?)\s*(?:#\s*(.*))?$")
-
-
-def parameter_descriptions(path: str | Path = DEFAULT_CONFIG_PATH) -> dict[str, str]:
-    """``{"group.key": comment}`` from the end-of-line comments of a params YAML file."""
-    out: dict[str, str] = {}
-    stack: list[tuple[int, str]] = []
-    try:
-        lines = Path(path).read_text().splitlines()
-    except OSError:
-        return out
-    for line in lines:
-        if not line.strip() or line.lstrip().startswith("#"):
-            continue
-        m = _COMMENT.match(line)
-        if not m:
-            continue
-        indent, key, value, comment = len(m.group(1)), m.group(2), m.group(3), m.group(4)
-        while stack and stack[-1][0] >= indent:
-            stack.pop()
-        if value == "":
-            stack.append((indent, key))
-            continue
-        groups = [k for _, k in stack if k not in ("ros__parameters",)]
-        name = ".".join(groups[-1:] + [key]) if groups else key
-        if comment:
-            out[name] = comment
-    return out
-
-
-def plain(value: Any) -> Any:
-    """A parameter value as plain Python (rclpy gives arrays as array.array)."""
-    if isinstance(value, (array.array, np.ndarray, tuple)):
-        return list(value)
-    return value
-
-
-def declare_config(node: Any, defaults: Config | None = None) -> Config:
-    """Declare every configuration value as a read-only parameter ``group.key`` with its
-    description and the shipped default, then build and validate the Config from the values
-    the node was started with (a params file or overrides). Raises ConfigError naming a bad value.
-    """
-    from rcl_interfaces.msg import ParameterDescriptor
-
-    defaults = defaults or load_config()
-    desc = parameter_descriptions()
-    flat = defaults.flat()
-    for name, value in flat.items():
-        node.declare_parameter(name, value, ParameterDescriptor(
-            description=desc.get(name, name), read_only=True, dynamic_typing=True))
-    return config_from_flat({name: plain(node.get_parameter(name).value) for name in flat})
-
-
-def declare(node: Any, name: str, default: Any, description: str, read_only: bool = True) -> Any:
-    """Declare one node parameter with a description; return its value. (The nodes' parameters
-    live in config/nodes.yaml, so that ``--help`` lists them: prefer adding one there.)"""
-    from rcl_interfaces.msg import ParameterDescriptor
-
-    node.declare_parameter(name, default, ParameterDescriptor(description=description,
-                                                              read_only=read_only))
-    return plain(node.get_parameter(name).value)
-
-
-# -- predictor ---------------------------------------------------------------------------------
-def cached_predictor(cfg: Config) -> Predictor:
-    """``Predictor.from_config(cfg)``: the core caches the FTRE gain table on disk
-    (:func:`cikan_ros.control.gain_table`), so the launcher fills it once and every node then
-    starts in well under a second with bit-identical gains."""
-    return Predictor.from_config(cfg)
+    """The QoS a node of the graph offers or requests on ``topic``: its kind's (the same for all
+    writers and readers, but the reader of /graph/ready, :data:`QOS_READY_READER`)."""
+    return QOS_PROFILES[TOPICS[topic].qos]
 
 
 # -- executor and process lifecycle -------------------------------------------------------------
@@ -229,8 +76,6 @@ def make_executor(context: Any = None) -> Any:
     """The process's one executor (see :data:`EXECUTORS`)."""
     kind = os.environ.get("CIKAN_ROS_EXECUTOR", "events")
     if kind not in EXECUTORS:
-        from ..errors import ConfigError
-
         raise ConfigError(f"CIKAN_ROS_EXECUTOR must be one of {EXECUTORS}, got {kind!r}")
     if kind == "events":
         from rclpy.experimental import EventsExecutor
@@ -239,12 +84,6 @@ def make_executor(context: Any = None) -> Any:
     from rclpy.executors import SingleThreadedExecutor
 
     return SingleThreadedExecutor(context=context)
-
-
-#: Exit code of a node started with bad input (unknown parameter, bad value, unreadable file), as `cikan`.
-EXIT_BAD_INPUT = 2
-#: Exit code of a node whose peers did not show up within ``graph.startup_timeout_s``.
-EXIT_NO_PEERS = 1
 
 
 class Readiness:
@@ -341,8 +180,7 @@ class Readiness:
             readers = self.node.get_subscriptions_info_by_topic(topic)
             if count >= max(n, len(readers)):
                 continue
-            recorded = ("recorder",) if topic in TOPIC_TYPES else ()
-            expected = [p for p in CONSUMERS.get(topic, ()) + recorded if p in peers]
+            expected = expected_readers(topic, peers) if topic in TOPICS else []
             there = sorted({i.node_name for i in readers})
             out.append(f"{topic}: {count} of {max(n, len(readers))} readers matched (expected "
                        f"{', '.join(expected) or '-'}" + (f"; discovered {', '.join(there)})" if there else ")"))
@@ -350,7 +188,7 @@ class Readiness:
             count = sub.get_publisher_count()
             if count < n:
                 out.append(f"{sub.topic_name}: {count} of {n} publishers matched "
-                           f"(expected {', '.join(p for p in PRODUCERS.get(sub.topic_name, ()) if p in peers) or '-'})")
+                           f"(expected {', '.join(expected_writers(sub.topic_name, peers) if sub.topic_name in TOPICS else []) or '-'})")
         if self.check is not None:
             out.extend(self.check())
         return out
@@ -501,16 +339,11 @@ def run_node(factory: Callable[[Any], Any], args: list[str] | None = None,
     up), :data:`EXIT_BAD_INPUT` for bad input (unknown parameter, bad value, unreadable params
     file or model) with one line on stderr.
     """
-    import sys
-
     import rclpy
     from rclpy.exceptions import ParameterException
     from rclpy.executors import ExternalShutdownException
     from rclpy.signals import SignalHandlerOptions
     from rclpy.task import Future
-
-    from ..errors import CikanError, ConfigError
-    from .params import command_line_names, parse_node_args, ros_section, unknown_overrides
 
     argv = list(sys.argv if args is None else args)
     name = spec.name if spec is not None else Path(argv[0] if argv else "node").name
@@ -588,7 +421,6 @@ def end_process(code: int) -> None:
     and a node must end promptly when its launcher stops it or dies. Everything that matters
     (bag closed, node destroyed, rclpy shut down) is done before."""
     import atexit
-    import sys
 
     atexit._run_exitfuncs()
     for stream in (sys.stdout, sys.stderr):

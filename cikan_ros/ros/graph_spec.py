@@ -1,16 +1,120 @@
-"""The mission graph as data: which nodes, which executables, which node parameters and which
-arguments (governor, seed, bag). Pure (no rclpy): the launcher (``cikan mission``) and the
-launch file for ROS installs (``launch/mission.launch.yaml``, checked against this by a test)
-describe the same graph.
+"""The mission graph as data: its topics (name, message type, QoS kind, who writes and who reads
+each), its nodes (peer name, executable, module), the arguments of a mission and the node
+parameters they set, and the exit codes of a node process.
+
+Pure data, no rclpy: the launcher (``cikan mission``, :mod:`cikan_ros.ros.launch`), the launch
+file for ROS installs (``launch/mission.launch.yaml``, checked against this by a test), the
+nodes, the recorder, the bag reader and ``cikan report`` all read it. The QoS profiles a kind
+names are built in :mod:`cikan_ros.ros.graph`.
 """
 
 from __future__ import annotations
 
+import importlib
 import os
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Iterable
+
+# -- topics -------------------------------------------------------------------------------------
+CLOCK = "/clock"
+CHIEF_ODOM = "/chief/odom"
+DEPUTY_ODOM = "/deputy/odom"
+TIME_SHIFT = "/tsg/time_shift"
+ACCEL_CMD = "/deputy/accel_cmd"
+DIAGNOSTICS = "/diagnostics"
+#: The governor announces which governor flies (diagnostic_msgs/DiagnosticStatus, latched).
+GOVERNOR_INFO = "/tsg/governor"
+#: The truth (the simulator's own states and the thrust as applied), for the record only: the
+#: governor and the controller read the measured states above.
+TRUTH_CHIEF = "/truth/chief/odom"
+TRUTH_DEPUTY = "/truth/deputy/odom"
+TRUTH_ACCEL = "/truth/deputy/accel"
+#: The readiness handshake (README, "Start"): each peer announces itself here once it is ready
+#: (diagnostic_msgs/DiagnosticStatus, name = peer, message "ready", hardware_id = node name;
+#: latched). The simulator starts the lockstep once every peer of ``graph.peers`` is ready.
+READY = "/graph/ready"
+
+#: /tsg/time_shift source when no decision was made at this step: the last verified shift holds.
+PATH_HOLD = "hold"
+
+#: QoS kinds (:mod:`cikan_ros.ros.graph` says why each is what it is): ``stream``, RELIABLE,
+#: VOLATILE, KEEP_LAST deep enough for a whole mission; ``latched``, RELIABLE, TRANSIENT_LOCAL,
+#: depth 1 (a reader that joins later still gets the last message).
+QOS_KINDS = ("stream", "latched")
 
 
+@dataclass(frozen=True)
+class Topic:
+    """One topic of the graph.
+
+    ``writers``: the peers that publish it (what a subscription waits for, see
+    :func:`required_publishers`); ``readers``: the peers whose subscription a publisher waits for
+    (:func:`required_readers`; the recorder comes on top for a ``recorded`` topic); ``recorded``:
+    the recorder writes its messages to the bag (a bag reader finds them there).
+    """
+
+    name: str
+    type: str
+    qos: str
+    writers: tuple[str, ...]
+    readers: tuple[str, ...]
+    recorded: bool = True
+
+
+#: Every topic of the graph. /clock readers are not awaited: rclpy's use_sim_time subscription is
+#: an implementation detail. The governor is not an awaited reader of the states: a governor may
+#: read only /deputy/odom (the simulator waits for it through the readiness handshake).
+#: /tsg/governor goes into the bag's metadata, not among its messages.
+TOPICS: dict[str, Topic] = {t.name: t for t in (
+    Topic(CLOCK, "rosgraph_msgs/msg/Clock", "stream", ("sim",), ()),
+    Topic(CHIEF_ODOM, "nav_msgs/msg/Odometry", "stream", ("sim",), ("controller",)),
+    Topic(DEPUTY_ODOM, "nav_msgs/msg/Odometry", "stream", ("sim",), ("controller",)),
+    Topic(TIME_SHIFT, "sensor_msgs/msg/TimeReference", "stream", ("governor",), ("controller",)),
+    Topic(ACCEL_CMD, "geometry_msgs/msg/AccelStamped", "stream", ("controller",), ("sim",)),
+    Topic(DIAGNOSTICS, "diagnostic_msgs/msg/DiagnosticArray", "stream", ("sim", "governor", "controller"), ()),
+    Topic(TRUTH_CHIEF, "nav_msgs/msg/Odometry", "stream", ("sim",), ()),
+    Topic(TRUTH_DEPUTY, "nav_msgs/msg/Odometry", "stream", ("sim",), ()),
+    Topic(TRUTH_ACCEL, "geometry_msgs/msg/AccelStamped", "stream", ("sim",), ()),
+    Topic(GOVERNOR_INFO, "diagnostic_msgs/msg/DiagnosticStatus", "latched", ("governor",), (), recorded=False),
+    Topic(READY, "diagnostic_msgs/msg/DiagnosticStatus", "latched", ("recorder", "governor", "controller", "sim"),
+          ("sim",), recorded=False),
+)}
+
+#: Topic -> ROS type name of every topic the recorder writes to a bag.
+TOPIC_TYPES: dict[str, str] = {t.name: t.type for t in TOPICS.values() if t.recorded}
+
+
+def message_class(type_name: str) -> type:
+    """The Python class of a ROS type name such as ``nav_msgs/msg/Odometry``."""
+    pkg, kind, name = type_name.split("/")
+    return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
+
+
+def expected_readers(topic: str, peers: Iterable[str]) -> list[str]:
+    """The peers of ``peers`` whose subscription to ``topic`` a publisher waits for."""
+    t, peers = TOPICS[topic], set(peers)
+    return [n for n in t.readers + (("recorder",) if t.recorded else ()) if n in peers]
+
+
+def expected_writers(topic: str, peers: Iterable[str]) -> list[str]:
+    """The peers of ``peers`` that publish ``topic``."""
+    peers = set(peers)
+    return [n for n in TOPICS[topic].writers if n in peers]
+
+
+def required_readers(topic: str, peers: Iterable[str]) -> int:
+    """How many readers ``topic`` has in a graph made of ``peers`` (node names)."""
+    return len(expected_readers(topic, peers))
+
+
+def required_publishers(topic: str, peers: Iterable[str]) -> int:
+    """How many publishers a reader of ``topic`` waits for in a graph made of ``peers``: one if any
+    of its writers is a peer (the governor's /diagnostics, optional in the contract, is not awaited)."""
+    producers = [n for n in expected_writers(topic, peers) if not (topic == DIAGNOSTICS and n == "governor")]
+    return 1 if producers else 0
+
+
+# -- nodes --------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class GraphNode:
     """One node of the graph: its peer name, the executable (console script) and its module."""
@@ -22,12 +126,20 @@ class GraphNode:
 
 #: The nodes in start order: the recorder first (it must hear everything), the simulator last.
 NODES: tuple[GraphNode, ...] = (
-    GraphNode("recorder", "recorder_node", "cikan_ros.ros.recorder"),
+    GraphNode("recorder", "recorder_node", "cikan_ros.ros.recorder_node"),
     GraphNode("governor", "governor_node", "governor_node"),
     GraphNode("controller", "controller_node", "controller_node"),
     GraphNode("sim", "sim_node", "sim_node"),
 )
+#: Peer name -> node.
+NODE_BY_NAME: dict[str, GraphNode] = {n.name: n for n in NODES}
 
+#: Exit code of a node started with bad input (unknown parameter, bad value, unreadable file), as `cikan`.
+EXIT_BAD_INPUT = 2
+#: Exit code of a node whose peers did not show up within ``graph.startup_timeout_s``.
+EXIT_NO_PEERS = 1
+
+# -- a mission's arguments ----------------------------------------------------------------------
 #: Arguments of a mission and their defaults: seed -1 is the nominal start; the bag is a new
 #: directory ``bags/<UTC start time>_<governor>`` (``{utc}`` in ``recorder.bag`` is that time).
 ARGUMENTS: dict[str, Any] = {"governor": "conventional", "seed": -1, "scenario": "paper",

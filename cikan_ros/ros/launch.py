@@ -35,16 +35,11 @@ import yaml
 from ..config import Config
 from ..errors import CikanError, MissionError
 from ..paths import shipped
+from ..tsg import Predictor
+from .bag_reader import SIM_TOPICS, check_messages, read_bag, recorded_metrics, sim_summary
 from .domain import lease_domain
-from .graph import EXIT_BAD_INPUT, cached_predictor
-
-#: Module run for each node (``python -m``), in start order: the recorder first, the sim last.
-NODE_MODULES = {
-    "recorder": "cikan_ros.ros.recorder",
-    "governor": "governor_node",
-    "controller": "controller_node",
-    "sim": "sim_node",
-}
+from .graph_spec import (ACCEL_CMD, ARGUMENTS, EXIT_BAD_INPUT, NODE_BY_NAME, NODES, TIME_SHIFT, UTC_FORMAT,
+                         node_parameters)
 
 
 def _nest(flat: dict[str, Any]) -> dict[str, Any]:
@@ -135,8 +130,9 @@ class Graph:
     pass_fds: tuple[int, ...] = ()
 
     def argv(self, name: str) -> list[str]:
-        """Command line of a node: its module (or its replacement) + ``--ros-args --params-file``."""
-        head = self.commands.get(name) or [sys.executable, "-m", NODE_MODULES[name]]
+        """Command line of a node: its module (``python -m``, :data:`graph_spec.NODES
+        <cikan_ros.ros.graph_spec.NODES>`) or its replacement + ``--ros-args --params-file``."""
+        head = self.commands.get(name) or [sys.executable, "-m", NODE_BY_NAME[name].module]
         return [*head, "--ros-args", "--params-file", str(self.params)]
 
     def start(self, names: Iterable[str]) -> None:
@@ -180,7 +176,7 @@ class Graph:
     def stop_all(self) -> None:
         """Producers first, the recorder last so the bag gets everything and closes."""
         from .graph import ACK_BUDGET_S
-        from .recorder import MAX_DRAIN_S
+        from .recorder_node import MAX_DRAIN_S
 
         # each waits for its readers' acknowledgements before it ends (graph.wait_acknowledged)
         self.stop(["sim", "governor", "controller"], timeout_s=ACK_BUDGET_S + 10.0)
@@ -188,9 +184,11 @@ class Graph:
 
 
 def default_bag_path(governor: str) -> Path:
+    """The bag of a mission not told where to record (graph_spec.ARGUMENTS["bag"]), for ``governor``
+    (a model path by its name)."""
     label = Path(governor).stem if os.sep in governor or governor.endswith((".json", ".safetensors")) \
         else governor
-    return Path("bags") / f"{datetime.now(timezone.utc):%Y%m%dT%H%M%SZ}_{label}"
+    return Path(ARGUMENTS["bag"].format(utc=datetime.now(timezone.utc).strftime(UTC_FORMAT), governor=label))
 
 
 def discard_empty_bag(bag: Path) -> bool:
@@ -218,7 +216,7 @@ def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | Non
                     keep_logs: bool = False, on_started: Any = None,
                     governor_exec: str | None = None) -> dict[str, Any]:
     """Run one lockstep mission as the ROS graph; return the recorded metrics
-    (:func:`cikan_ros.ros.record.recorded_metrics`) + ``bag`` + ``ros``.
+    (:func:`cikan_ros.ros.bag_reader.recorded_metrics`) + ``bag`` + ``ros``.
 
     ``governor_exec``: a command line run in place of governor_node (the README's contract); it
     gets ``--ros-args --params-file FILE`` appended, the graph's environment, and
@@ -229,21 +227,18 @@ def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | Non
     CikanError line naming the node, its exit code, its last error line and where the logs are;
     a bag without a message is removed then, a bag with messages is kept (closed, readable).
     """
-    from .graph import ACCEL_CMD, TIME_SHIFT
-    from .record import check_messages, read_bag, recorded_metrics
-
     commands = {"governor": exec_command(governor_exec)} if governor_exec is not None else {}
     if governor_exec is not None:
         governor = f"exec:{governor_exec}"
     bag_path = Path(bag) if bag is not None else default_bag_path(governor)
     if bag_path.exists() and (not bag_path.is_dir() or any(bag_path.iterdir())):
         raise CikanError(f"bag directory {bag_path} exists and is not empty")
-    cached_predictor(cfg)  # fill the gain-table cache once, so every node starts in a second
+    # The core caches the FTRE gain table on disk (cikan_ros.control.gain_table): filled here once,
+    # every node then starts in a second with bit-identical gains.
+    Predictor.from_config(cfg)
     workdir = Path(tempfile.mkdtemp(prefix="cikan_ros_"))
-    params = {"governor.name": governor, "sim.seed": -1 if seed is None else int(seed),
-              "sim.stop_on_dock": bool(stop_on_dock), "recorder.bag": str(bag_path.resolve()),
-              "mission.approach": cfg.mission.approach,
-              "graph.peers": ["sim", "governor", "controller", "recorder"], **(node_params or {})}
+    params = {**node_parameters(governor, seed, bag_path.resolve(), stop_on_dock, cfg.mission.approach),
+              **(node_params or {})}
     lease = lease_domain()   # held until every node has ended: no other graph flies on it
     graph = Graph(workdir, ros_environment(lease.domain, workdir / "ros_log"),
                   write_params(workdir / "params.yaml", cfg, params), commands=commands,
@@ -265,7 +260,7 @@ def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | Non
     # SIGTERM stops the graph like Ctrl-C (signal handlers exist only in the main thread).
     previous = signal.signal(signal.SIGTERM, terminate) if main_thread else None
     try:
-        graph.start(NODE_MODULES)
+        graph.start(n.name for n in NODES)
         if on_started is not None:
             on_started(graph)
         sim = graph.procs["sim"]
@@ -319,8 +314,6 @@ def recorded_steps(bag: Path, msgs: dict[str, list[tuple[int, Any]]], cfg: Confi
     (one line) if the bag lacks that record or any message of the simulator's topics at any of
     the K steps, or holds one twice or off the grid: a bag cut short or with holes is a failed
     mission, never a shorter one."""
-    from .record import SIM_TOPICS, check_messages, sim_summary
-
     summary = sim_summary(msgs)
     if summary is None:
         raise MissionError(f"the bag {bag} lacks the simulator's mission-complete record: the recorder "

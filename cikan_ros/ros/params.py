@@ -2,7 +2,10 @@
 ``config/nodes.yaml`` (and the mission configuration from ``config/cikan.yaml``), so that the node,
 its ``--help`` and the checks of a command line all read the same declarations.
 
+- :func:`declare_config` declares the mission configuration (read-only, described by the comments
+  of ``config/cikan.yaml``) and builds the node's :class:`~cikan_ros.config.Config`;
 - :func:`declare_parameters` declares a node's groups (read-only unless named dynamic);
+  :func:`declare` one parameter that is not in ``config/nodes.yaml``;
 - :func:`parse_node_args` answers ``--help`` (usage and every parameter, without starting rclpy)
   and rejects stray arguments and unreadable params files before rclpy starts (exit code 2);
 - :func:`unknown_overrides` finds the ``-p`` and params-file entries no node uses (typos).
@@ -15,14 +18,17 @@ unknown group, or any ``-p`` it does not declare, is an error.
 from __future__ import annotations
 
 import argparse
+import array
 import difflib
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
+import numpy as np
 import yaml
 
-from ..config import read_params
+from ..config import DEFAULT_CONFIG_PATH, Config, config_from_flat, load_config, read_params
 from ..errors import ConfigError
 from ..paths import shipped
 
@@ -56,6 +62,43 @@ class NodeSpec:
     dynamic: tuple[str, ...] = ()
 
 
+_COMMENT = re.compile(r"^(\s*)([A-Za-z_]\w*):\s*(.*?)\s*(?:#\s*(.*))?$")
+
+
+def parameter_descriptions(path: str | Path = DEFAULT_CONFIG_PATH) -> dict[str, str]:
+    """``{"group.key": comment}`` from the end-of-line comments of a params YAML file."""
+    out: dict[str, str] = {}
+    stack: list[tuple[int, str]] = []
+    try:
+        lines = Path(path).read_text().splitlines()
+    except OSError:
+        return out
+    for line in lines:
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        m = _COMMENT.match(line)
+        if not m:
+            continue
+        indent, key, value, comment = len(m.group(1)), m.group(2), m.group(3), m.group(4)
+        while stack and stack[-1][0] >= indent:
+            stack.pop()
+        if value == "":
+            stack.append((indent, key))
+            continue
+        groups = [k for _, k in stack if k not in ("ros__parameters",)]
+        name = ".".join(groups[-1:] + [key]) if groups else key
+        if comment:
+            out[name] = comment
+    return out
+
+
+def plain(value: Any) -> Any:
+    """A parameter value as plain Python (rclpy gives arrays as array.array)."""
+    if isinstance(value, (array.array, np.ndarray, tuple)):
+        return list(value)
+    return value
+
+
 def node_defaults(path: str | Path = NODE_PARAMS_PATH) -> dict[str, Any]:
     """``{"group.key": default}`` of every node parameter in ``config/nodes.yaml``."""
     return read_params(path)
@@ -63,8 +106,6 @@ def node_defaults(path: str | Path = NODE_PARAMS_PATH) -> dict[str, Any]:
 
 def parameters(spec: NodeSpec) -> list[Param]:
     """The node parameters ``spec`` declares, in file order."""
-    from .graph import parameter_descriptions
-
     desc = parameter_descriptions(NODE_PARAMS_PATH)
     defaults = node_defaults()
     return [Param(name, defaults[name], desc.get(name, name), name not in spec.dynamic)
@@ -72,10 +113,7 @@ def parameters(spec: NodeSpec) -> list[Param]:
 
 
 def config_parameters() -> list[Param]:
-    """The mission configuration as :func:`cikan_ros.ros.graph.declare_config` declares it."""
-    from ..config import load_config
-    from .graph import parameter_descriptions
-
+    """The mission configuration as :func:`declare_config` declares it."""
     desc = parameter_descriptions()
     return [Param(name, value, desc.get(name, name)) for name, value in load_config().flat().items()]
 
@@ -84,14 +122,38 @@ def declare_parameters(node: Any, spec: NodeSpec) -> dict[str, Any]:
     """Declare the node parameters of ``spec`` on ``node``; return ``{name: value}`` as started."""
     from rcl_interfaces.msg import ParameterDescriptor
 
-    from .graph import plain
-
     out: dict[str, Any] = {}
     for p in parameters(spec):
         node.declare_parameter(p.name, p.default, ParameterDescriptor(description=p.description,
                                                                       read_only=p.read_only))
         out[p.name] = plain(node.get_parameter(p.name).value)
     return out
+
+
+def declare_config(node: Any, defaults: Config | None = None) -> Config:
+    """Declare every configuration value as a read-only parameter ``group.key`` with its
+    description and the shipped default, then build and validate the Config from the values
+    the node was started with (a params file or overrides). Raises ConfigError naming a bad value.
+    """
+    from rcl_interfaces.msg import ParameterDescriptor
+
+    defaults = defaults or load_config()
+    desc = parameter_descriptions()
+    flat = defaults.flat()
+    for name, value in flat.items():
+        node.declare_parameter(name, value, ParameterDescriptor(
+            description=desc.get(name, name), read_only=True, dynamic_typing=True))
+    return config_from_flat({name: plain(node.get_parameter(name).value) for name in flat})
+
+
+def declare(node: Any, name: str, default: Any, description: str, read_only: bool = True) -> Any:
+    """Declare one node parameter with a description; return its value. (The nodes' parameters
+    live in config/nodes.yaml, so that ``--help`` lists them: prefer adding one there.)"""
+    from rcl_interfaces.msg import ParameterDescriptor
+
+    node.declare_parameter(name, default, ParameterDescriptor(description=description,
+                                                              read_only=read_only))
+    return plain(node.get_parameter(name).value)
 
 
 # -- command line -------------------------------------------------------------------------------
@@ -187,8 +249,6 @@ def unknown_overrides(declared: Iterable[str], overrides: Iterable[str], command
     ``declared``: names the node declared; ``overrides``: every override it received (params files
     and ``-p``); ``command_line``: the names given with ``-p`` on its own command line.
     """
-    from ..config import Config
-
     declared = set(declared)
     own_groups = {n.partition(".")[0] for n in declared if "." in n}
     known_groups = set(NODE_GROUPS) | {n.partition(".")[0] for n in Config().flat()}

@@ -8,7 +8,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import TimeReference
 
 from cikan_ros.mission import Schedule, nominal_start
-from cikan_ros.ros.graph import declare_config
+from cikan_ros.ros.params import declare_config
 from cikan_ros.tsg import Predictor
 
 

@@ -1,5 +1,13 @@
-"""A mission as recorded in a bag: rebuild the :class:`MissionResult` of a ROS run (read with
-rosbags), so the ROS graph reports exactly the metrics of the offline loop.
+"""The bag reader: a mission as recorded in a bag (read with rosbags, an independent reader),
+rebuilt into the :class:`MissionResult` of the offline loop, so the ROS graph reports exactly its
+metrics; the checks of a recorded lockstep (lost, duplicated, off-grid messages); what the bag's
+metadata carries (the configuration, the governors that flew). No rclpy: ``cikan report`` reads
+bags without it. The bag writer is :mod:`cikan_ros.ros.bag_writer`.
+
+The metrics are the core's (:meth:`MissionResult.metrics`, :func:`cikan_ros.mission.audit_shifts`):
+:func:`recorded_metrics` hands them the rebuilt run. It lives here rather than in ``analysis/``
+because the launcher (:mod:`cikan_ros.ros.launch`, below ``analysis/`` in the import order)
+reports them too.
 
 The typed topics are enough (any governor keeping the topic contract, see the README). Per step
 k (stamp t_k): x_d, x_c from the truth's odometry (/truth/*; a bag without them, recorded before
@@ -25,16 +33,18 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 
-from ..config import Config
+from ..config import Config, config_from_flat, load_config
 from ..constraints import margins
 from ..errors import CikanError
 from ..governor import UpdateRecord
-from ..mission import MissionResult, Schedule
+from ..mission import MissionResult, Schedule, audit_shifts
+from ..tsg import Predictor
 from ..units import m_to_km
 from .convert import MessageError, Timeline, accel_from_msg, diagnostic_values, floats, shift_from_msg, time_to_ns
-from .graph import (ACCEL_CMD, CHIEF_ODOM, CLOCK, DEPUTY_ODOM, DIAGNOSTICS, TIME_SHIFT, TRUTH_ACCEL,
-                    TRUTH_CHIEF, TRUTH_DEPUTY)
+from .graph_spec import (ACCEL_CMD, CHIEF_ODOM, CLOCK, DEPUTY_ODOM, DIAGNOSTICS, TIME_SHIFT, TRUTH_ACCEL,
+                         TRUTH_CHIEF, TRUTH_DEPUTY)
 
 
 #: Integer values of the simulator's summary record.
@@ -73,8 +83,6 @@ def check_messages(msgs: dict[str, list[tuple[int, Any]]], cfg: Config, n_steps:
     each topic of ``topics`` (default all of :func:`expected_stamps`) holds one message for each
     of its stamps, none twice, none off the T_c grid, each logged at its own stamp; the
     simulator's /diagnostics holds one step record for each step. ``lost_on``: where."""
-    from .convert import diagnostic_values
-
     tl = Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
     expected = expected_stamps(n_steps)
     lost = dup = off = total = 0
@@ -242,9 +250,6 @@ def recorded_metrics(path: str | Path, cfg: Config, governor: str,
     ``unverified_shifts``, ``off_schedule_shifts`` and ``missing_shifts`` (steps with no valid
     shift), and the simulator's summary under ``ros`` when it was recorded. Values the bag does
     not hold (decision wall times without governor_node's records) are None."""
-    from ..mission import audit_shifts
-    from ..tsg import Predictor
-
     result, summary = mission_from_bag(path, cfg, governor, msgs)
     seen_d = result.x_d if result.x_d_seen is None else result.x_d_seen
     seen_c = None if result.x_c_seen is None else result.x_c_seen
@@ -262,17 +267,36 @@ def recorded_metrics(path: str | Path, cfg: Config, governor: str,
     return result, metrics
 
 
+# -- metadata -----------------------------------------------------------------------------------
+def bag_custom_data(path: str | Path) -> dict[str, str]:
+    """The ``custom_data`` of a bag's metadata.yaml (what the recorder stored beside the
+    messages); OSError or yaml.YAMLError when the file cannot be read."""
+    meta = yaml.safe_load((Path(path) / "metadata.yaml").read_text()) or {}
+    return (meta.get("rosbag2_bagfile_information") or {}).get("custom_data") or {}
+
+
+def bag_config(path: str | Path, fallback: Config | None) -> Config:
+    """The configuration a bag was recorded with (``cikan_ros.config``), else ``fallback`` (else
+    the shipped one)."""
+    custom = bag_custom_data(path)
+    if "cikan_ros.config" in custom:
+        return config_from_flat(json.loads(custom["cikan_ros.config"]))
+    return fallback or load_config()
+
+
+def bag_governor(path: str | Path) -> str:
+    """The governors that flew as the bag records them (``cikan_ros.governor``), else the part of
+    the bag's name after its first ``_`` (``<UTC time>_<governor>``)."""
+    return bag_custom_data(path).get("cikan_ros.governor", Path(path).name.split("_", 1)[-1])
+
+
 def bag_governor_announcements(path: str | Path) -> list[dict[str, Any]]:
     """The governor announcements a bag's metadata holds (``cikan_ros.governor_announcements``:
     which governor flew, its model, scenario and side; empty when there are none)."""
-    import yaml
-
-    meta_file = Path(path) / "metadata.yaml"
     try:
-        meta = yaml.safe_load(meta_file.read_text()) or {}
+        custom = bag_custom_data(path)
     except (OSError, yaml.YAMLError):
         return []
-    custom = (meta.get("rosbag2_bagfile_information") or {}).get("custom_data") or {}
     try:
         out = json.loads(custom.get("cikan_ros.governor_announcements", "[]"))
     except json.JSONDecodeError:

@@ -4,7 +4,7 @@ received (raw CDR), to a rosbag2 MCAP bag.
 Messages are logged at their own stamp (header.stamp, or the Clock's time): the bag is a
 sim-time record in which the messages of step k share t_k, whatever their arrival order.
 Chunks are flushed every ``recorder.flush_period_s`` (wall) or ``recorder.chunk_bytes``, so a
-crash loses at most the chunk in progress (see :mod:`cikan_ros.ros.bag`). SIGINT/SIGTERM: the
+crash loses at most the chunk in progress (see :mod:`cikan_ros.ros.bag_writer`). SIGINT/SIGTERM: the
 recorder keeps taking messages until none came for ``recorder.drain_s`` (at most
 :data:`MAX_DRAIN_S`), then closes the bag.
 The governor's announcements (/tsg/governor, latched) go into the bag's metadata (custom_data
@@ -27,11 +27,10 @@ from rclpy.task import Future
 
 from . import convert as cv
 from ..errors import ConfigError
-from .bag import BagWriter, qos_dict
-from .graph import (GOVERNOR_INFO, QOS_LATCHED, QOS_RECORD, TOPIC_TYPES, Readiness, declare_config,
-                    message_class, plain, required_publishers, run_node)
-from .graph_spec import UTC_FORMAT
-from .params import NodeSpec, declare_parameters
+from .bag_writer import BagWriter, qos_dict
+from .graph import Readiness, qos_for, run_node
+from .graph_spec import GOVERNOR_INFO, TOPIC_TYPES, UTC_FORMAT, message_class, required_publishers
+from .params import NodeSpec, declare_config, declare_parameters, plain
 
 NAME = "recorder_node"
 #: On SIGINT/SIGTERM the recorder drains until no message came for ``recorder.drain_s``, at most
@@ -84,10 +83,10 @@ class RecorderNode(Node):
         # each (graph.required_readers) before they are ready; it writes recorder.topics.
         read = list(TOPIC_TYPES) if "recorder" in self.peers else self.topics
         subs = [self.readiness.subscription(message_class(TOPIC_TYPES[topic]), topic,
-                                            lambda data, t=topic: self.on_message(t, data), QOS_RECORD,
+                                            lambda data, t=topic: self.on_message(t, data), qos_for(topic),
                                             raw=True)
                 for topic in read]
-        self.create_subscription(DiagnosticStatus, GOVERNOR_INFO, self.on_governor, QOS_LATCHED)
+        self.create_subscription(DiagnosticStatus, GOVERNOR_INFO, self.on_governor, qos_for(GOVERNOR_INFO))
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(self.flush_period_s, self.bag.flush, clock=steady)
         self.create_timer(0.05, self.check_stop, clock=steady)

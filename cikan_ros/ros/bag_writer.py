@@ -1,4 +1,9 @@
-"""rosbag2 bag directories (metadata.yaml version 9 + one MCAP file) written from raw CDR bytes.
+"""The bag writer: rosbag2 bag directories (metadata.yaml version 9 + one MCAP file) written from
+raw CDR bytes, by the recorder (:mod:`cikan_ros.ros.recorder_node`) and by tests. Reading a bag
+back: :mod:`cikan_ros.ros.bag_reader`.
+
+``with BagWriter(path) as bag:`` closes the bag when the block ends, also on an exception (what
+was written is then a complete, readable bag).
 
 What rosbag2 itself writes and what independent readers (rosbags, mcap, Foxglove) expect:
 profile ``ros2``; one schema per type, encoding ``ros2msg``, text = the installed .msg file
@@ -24,6 +29,7 @@ import json
 import os
 import re
 from pathlib import Path
+from types import TracebackType
 from typing import Any
 
 import yaml
@@ -189,7 +195,8 @@ class _Sink:
 
 
 class BagWriter:
-    """A rosbag2 MCAP bag directory written from raw CDR messages (see the module docstring)."""
+    """A rosbag2 MCAP bag directory written from raw CDR messages (see the module docstring); a
+    context manager that closes it."""
 
     def __init__(self, path: str | Path, chunk_bytes: int = 256 * 1024,
                  custom_data: dict[str, str] | None = None) -> None:
@@ -259,12 +266,22 @@ class BagWriter:
         """Finish the MCAP file (summary, footer) and write the final metadata.yaml."""
         if self.closed:
             return
-        self.writer.finish()
-        self.sink.close()
-        self.closed = True
+        try:
+            self.writer.finish()
+        finally:
+            self.sink.close()
+            self.closed = True
         self.flushed = dict(self.counts)
         self.flushed_times = list(self.times)
         self.write_metadata()
+
+    def __enter__(self) -> BagWriter:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        """Close the bag, whether the block ended normally or by an exception (which propagates)."""
+        self.close()
 
     def write_metadata(self) -> None:
         """metadata.yaml (rosbag2_bagfile_information, version 9) for what is flushed, atomically."""
