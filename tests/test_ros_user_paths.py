@@ -25,14 +25,15 @@ from cikan_ros.governor import (PATH_AUDIT, PATH_BISECT, PATH_INITIAL, PATH_KEEP
 from cikan_ros.mission import ClosedLoop, nominal_start, run_mission
 from cikan_ros.registry import make_governor
 from cikan_ros.ros.convert import Timeline
-from cikan_ros.ros.graph_spec import PATH_HOLD
+from cikan_ros.ros.graph_spec import NODES, PATH_HOLD
+from cikan_ros.ros.launch import Graph, ros_environment, run_ros_mission, write_params
 from cikan_ros.tsg import Predictor
-from cikan_ros.ros.launch import NODE_MODULES, Graph, ros_environment, run_ros_mission, write_params
 from ros_helpers import (at_step, controller_record, diagnostics, independent_check, mcap_counts, ros_env,
                          rosbags_messages, set_in_flight, shifts, stamp_ns, states, watcher)
 
 __all__ = ["ros_env"]
 HERE = Path(__file__).resolve().parent
+PEERS = [n.name for n in NODES]   # start order: the recorder first, the simulator last
 #: Decision paths only the conventional TSG takes, and those only a learned governor takes.
 CONVENTIONAL_PATHS = {PATH_INITIAL, PATH_BISECT, PATH_VERIFY_ZERO, PATH_ZERO}
 LEARNED_ONLY_PATHS = {PATH_NN, PATH_NN_BISECT, PATH_KEEP, PATH_PROBE, PATH_SEARCH, PATH_AUDIT, PATH_STALL}
@@ -196,14 +197,14 @@ def test_recorder_records_only_the_topics_it_is_given(ros_env: int, tmp_path: Pa
     bag = tmp_path / "bag"
     chosen = ["/deputy/odom", "/tsg/time_shift"]
     params = write_params(tmp_path / "params.yaml", cfg, {
-        "graph.peers": list(NODE_MODULES), "recorder.bag": str(bag), "recorder.topics": chosen})
+        "graph.peers": PEERS, "recorder.bag": str(bag), "recorder.topics": chosen})
     graph = Graph(tmp_path, ros_environment(ros_env, tmp_path / "log"), params)
     try:
-        graph.start(NODE_MODULES)
+        graph.start(PEERS)
         assert graph.procs["sim"].wait(timeout=300) == 0, graph.tail("sim")
     finally:
         graph.stop_all()
-    assert {n: p.returncode for n, p in graph.procs.items()} == {n: 0 for n in NODE_MODULES}
+    assert {n: p.returncode for n, p in graph.procs.items()} == {n: 0 for n in PEERS}
     msgs = rosbags_messages(bag)
     assert sorted(msgs) == sorted(chosen) and mcap_counts(bag) == {t: len(m) for t, m in msgs.items()}
     tl = Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)

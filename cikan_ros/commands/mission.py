@@ -40,7 +40,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="conventional (default), cikan, grbf, rswaf, relu, gelu, or a model file/directory")
     p.add_argument("--governor-exec", metavar='"CMD ARGS"', default=None,
                    help="ROS run: start this executable in place of governor_node (the governor "
-                        "contract in the README); it gets ARGS followed by --ros-args --params-file "
+                        "contract in docs/governor_contract.md); it gets ARGS followed by --ros-args --params-file "
                         "FILE, the file every node gets; the bag and the metrics name the governor "
                         "exec:CMD ARGS, and the summary adds an audit of its time shifts")
     p.add_argument("--offline", action="store_true",

@@ -11,7 +11,7 @@ Use:
 - ``cikan mission [--governor NAME] [--seed N] [--bag DIR] [--json]``: the four nodes as separate
   processes on an isolated localhost domain, lockstep to T_sim, metrics as offline plus the bag.
 - ``cikan replay BAG [--rate R | --fast] [--wait-subscribers N]``: republish a bag with /clock.
-- Nodes by hand, colcon and ``ros2 launch``: README.md, sections "Running the nodes by hand" (a
+- Nodes by hand, colcon and ``ros2 launch``: docs/ros_graph.md, sections "Running the nodes by hand" (a
   tested recipe) and "colcon and ROS 2 launch"; ``<node> --help`` lists a node's parameters.
 - Executor: EventsExecutor (measured faster; ``CIKAN_ROS_EXECUTOR=single`` for the other).
 - Gain tables are cached in ``$CIKAN_CACHE_DIR`` or ``~/.cache/cikan_ros``.

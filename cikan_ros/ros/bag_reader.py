@@ -9,7 +9,7 @@ The metrics are the core's (:meth:`MissionResult.metrics`, :func:`cikan_ros.miss
 because the launcher (:mod:`cikan_ros.ros.launch`, below ``analysis/`` in the import order)
 reports them too.
 
-The typed topics are enough (any governor keeping the topic contract, see the README). Per step
+The typed topics are enough (any governor keeping the topic contract, docs/governor_contract.md). Per step
 k (stamp t_k): x_d, x_c from the truth's odometry (/truth/*; a bag without them, recorded before
 the truth had topics of its own, from the measured odometry), and the measured states the
 governor saw from /deputy/odom and /chief/odom; the shift in force from /tsg/time_shift (the first

@@ -87,7 +87,7 @@ def make_executor(context: Any = None) -> Any:
 
 
 class Readiness:
-    """The readiness handshake every node of the graph takes part in (README, "Start").
+    """The readiness handshake every node of the graph takes part in (docs/governor_contract.md, "Start").
 
     Construct it first thing in the node: it creates the node's /graph/ready publisher (latched:
     RELIABLE, TRANSIENT_LOCAL, depth 1) before any other endpoint, so a peer that discovers one
@@ -230,7 +230,7 @@ class Readiness:
 
 
 class PeerWatch:
-    """What the simulator waits for before the lockstep (README, "Start"): the /graph/ready
+    """What the simulator waits for before the lockstep (docs/governor_contract.md, "Start"): the /graph/ready
     announcement of every peer of ``graph.peers``; a governor that does not announce itself
     (today's contract) counts as ready once a node that has no /graph/ready publisher publishes
     /tsg/time_shift and reads a state topic (its readers and publishers then being matched by the

@@ -29,7 +29,7 @@ GOVERNOR_INFO = "/tsg/governor"
 TRUTH_CHIEF = "/truth/chief/odom"
 TRUTH_DEPUTY = "/truth/deputy/odom"
 TRUTH_ACCEL = "/truth/deputy/accel"
-#: The readiness handshake (README, "Start"): each peer announces itself here once it is ready
+#: The readiness handshake (docs/governor_contract.md, "Start"): each peer announces itself here once it is ready
 #: (diagnostic_msgs/DiagnosticStatus, name = peer, message "ready", hardware_id = node name;
 #: latched). The simulator starts the lockstep once every peer of ``graph.peers`` is ready.
 READY = "/graph/ready"

@@ -5,7 +5,7 @@ interpreters, own process groups) on an isolated domain: a ROS_DOMAIN_ID that no
 of the machine uses (leased for the graph's lifetime, :mod:`cikan_ros.ros.domain`), DDS over
 UDP on the loopback interface only (:func:`dds_environment`) and a private ROS_LOG_DIR. Every node gets the same
 params file (the mission's configuration plus node parameters); ``governor_exec`` runs any
-executable in place of governor_node with the same arguments (the README's governor contract).
+executable in place of governor_node with the same arguments (the governor contract, docs/governor_contract.md).
 The simulator ends the lockstep; the launcher then stops the governor and the controller, then
 the recorder (which drains and closes the bag), rebuilds the mission from the bag and returns
 the offline metrics plus the bag path. Ctrl-C (or SIGTERM) stops every child in the same order
@@ -218,7 +218,7 @@ def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | Non
     """Run one lockstep mission as the ROS graph; return the recorded metrics
     (:func:`cikan_ros.ros.bag_reader.recorded_metrics`) + ``bag`` + ``ros``.
 
-    ``governor_exec``: a command line run in place of governor_node (the README's contract); it
+    ``governor_exec``: a command line run in place of governor_node (the contract of docs/governor_contract.md); it
     gets ``--ros-args --params-file FILE`` appended, the graph's environment, and
     ``governor.name`` = ``exec:<command>`` (the name the bag and the metrics carry).
     ``config_path``/``overrides`` are accepted for the record (``cfg`` already contains them).
