@@ -170,14 +170,40 @@ def test_no_import_cycle() -> None:
     assert cycle is None, "import cycle: " + " -> ".join(cycle or [])
 
 
+def rclpy_lines(module: str) -> list[str]:
+    """file:line of every statement of ``module`` that imports rclpy itself (anywhere in it)."""
+    path = MODULES[module]
+    out = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                 else [node.module or ""] if isinstance(node, ast.ImportFrom) and not node.level else [])
+        out += [f"{path.relative_to(ROOT)}:{node.lineno}" for n in names if n.split(".")[0] == "rclpy"]
+    return out
+
+
 def test_rclpy_only_in_ros_and_the_nodes() -> None:
     """The library runs without ROS: rclpy is imported only under cikan_ros/ros/ and by the nodes."""
-    bad = []
-    for m, path in MODULES.items():
-        if m.startswith(("cikan_ros.ros", "sim_node", "governor_node", "controller_node")):
-            continue
-        for node in ast.walk(ast.parse(path.read_text())):
-            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
-                     else [node.module or ""] if isinstance(node, ast.ImportFrom) and not node.level else [])
-            bad += [f"{path.relative_to(ROOT)}:{node.lineno}" for n in names if n.split(".")[0] == "rclpy"]
+    bad = [line for m in MODULES if not m.startswith(("cikan_ros.ros", "sim_node", "governor_node",
+                                                        "controller_node")) for line in rclpy_lines(m)]
     assert not bad, f"rclpy imported outside cikan_ros/ros/ and the nodes: {bad}"
+
+
+#: What reads a graph's table or its bags without a running graph: the topic and node table, the
+#: parameter files, the bag reader and writer, and analysis/ (``cikan report BAG``).
+RCLPY_FREE = ("cikan_ros.ros.graph_spec", "cikan_ros.ros.params", "cikan_ros.ros.bag_reader",
+              "cikan_ros.ros.bag_writer", "cikan_ros.analysis")
+
+
+def test_table_and_bags_never_load_rclpy() -> None:
+    """Nothing these modules import, at any depth and function-level imports included, imports
+    rclpy (the launcher, the recorder and the report read the table and the bags without it)."""
+    bad = []
+    for root in RCLPY_FREE:
+        seen, todo = set(), [m for m in MODULES if m == root or m.startswith(root + ".")]
+        while todo:
+            m = todo.pop()
+            if m not in seen:
+                seen.add(m)
+                bad += [f"{root} -> ... {m}: {line}" for line in rclpy_lines(m)]
+                todo += [d for d, _ in GRAPH[m]]
+    assert not bad, "rclpy reached from an rclpy-free module:\n" + "\n".join(bad)
