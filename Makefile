@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 EXTRAS := ros,learn,report,dev
 
-.PHONY: install run test bench montecarlo results robustness controller-sweep models models-prev scenario-data scenario-models scenario-result scenario-results scenario-index scenario-bench bad-networks clean
+.PHONY: install run test test-avx2 bench montecarlo results robustness controller-sweep models models-prev scenario-data scenario-models scenario-result scenario-results scenario-index scenario-bench bad-networks clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -19,6 +19,17 @@ run: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest
+
+# The suite with an AVX2 processor's arithmetic, run on an AVX-512 one (docs/reproducibility.md):
+# OpenBLAS's Haswell kernels (what AVX2 machines, AMD Zen 1-3 included, run), numpy's dispatch
+# without AVX-512, numba compiling for haswell; numba's and the gain tables' caches of their own
+# (a gain table computed with other kernels must not be reused). Needs an x86-64 with AVX-512;
+# on an AVX2 machine `make test` is already this arithmetic.
+AVX2_CACHE := $(HOME)/.cache/cikan_ros/avx2
+AVX2_ENV   := OPENBLAS_CORETYPE=Haswell NPY_DISABLE_CPU_FEATURES="X86_V4 AVX512_ICL AVX512_SPR" \
+	NUMBA_CPU_NAME=haswell NUMBA_CPU_FEATURES= NUMBA_CACHE_DIR=$(AVX2_CACHE)/numba CIKAN_CACHE_DIR=$(AVX2_CACHE)
+test-avx2: $(STAMP)
+	env $(AVX2_ENV) $(BIN)/python -m pytest
 
 bench: $(STAMP)
 	$(BIN)/cikan bench --json
