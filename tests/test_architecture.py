@@ -189,9 +189,10 @@ def test_rclpy_only_in_ros_and_the_nodes() -> None:
 
 
 #: What reads a graph's table or its bags without a running graph: the topic and node table, the
-#: parameter files, the bag reader and writer, and analysis/ (``cikan report BAG``).
+#: parameter files, the bag reader and writer, the launcher (``cikan mission`` starts the nodes as
+#: processes; it never joins the graph) and analysis/ (``cikan report BAG``).
 RCLPY_FREE = ("cikan_ros.ros.graph_spec", "cikan_ros.ros.params", "cikan_ros.ros.bag_reader",
-              "cikan_ros.ros.bag_writer", "cikan_ros.analysis")
+              "cikan_ros.ros.bag_writer", "cikan_ros.ros.launch", "cikan_ros.analysis")
 
 
 def test_table_and_bags_never_load_rclpy() -> None:

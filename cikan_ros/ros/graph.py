@@ -36,8 +36,8 @@ from typing import Any, Callable, Iterable
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from ..errors import CikanError, ConfigError
-from .graph_spec import (CHIEF_ODOM, DEPUTY_ODOM, EXIT_BAD_INPUT, EXIT_NO_PEERS, READY, TIME_SHIFT, TOPICS,
-                         expected_readers, expected_writers)
+from .graph_spec import (ACK_BUDGET_S, CHIEF_ODOM, DEPUTY_ODOM, EXIT_BAD_INPUT, EXIT_NO_PEERS, READY, TIME_SHIFT,
+                         TOPICS, expected_readers, expected_writers)
 from .params import command_line_names, parse_node_args, plain, ros_section, unknown_overrides
 
 # -- QoS ----------------------------------------------------------------------------------------
@@ -293,11 +293,6 @@ def _rcl_message(exc: BaseException) -> str:
     return str(exc).split(", at /")[0]
 
 
-#: How long (wall) a node that ends waits, in all, for every reliable reader to acknowledge what
-#: its publishers sent (:func:`wait_acknowledged`). Live readers acknowledge within a heartbeat
-#: (0.1 s, config/fastdds_udp_localhost.xml); what outlasts this is a reader that died without a
-#: word (a process killed outright), whose participant Fast DDS drops only when its lease ends.
-ACK_BUDGET_S = 5.0
 
 
 def wait_acknowledged(node: Any, budget_s: float = ACK_BUDGET_S) -> list[str]:

@@ -139,6 +139,20 @@ EXIT_BAD_INPUT = 2
 #: Exit code of a node whose peers did not show up within ``graph.startup_timeout_s``.
 EXIT_NO_PEERS = 1
 
+# -- how long a node takes to end (wall; the launcher waits for them) ---------------------------
+#: How long (wall) a node that ends waits, in all, for every reliable reader to acknowledge what
+#: its publishers sent (:func:`cikan_ros.ros.graph.wait_acknowledged`). Live readers acknowledge
+#: within a heartbeat (0.1 s, config/fastdds_udp_localhost.xml); what outlasts this is a reader
+#: that died without a word (a process killed outright), whose participant Fast DDS drops only
+#: when its lease ends.
+ACK_BUDGET_S = 5.0
+
+#: On SIGINT/SIGTERM the recorder drains until no message came for ``recorder.drain_s``, at most
+#: this long (wall). Its producers have stopped by then, so the stream ends; a recorder starved
+#: of CPU may be far behind it, and what it still holds in its readers is part of the mission
+#: (with a cap of 10 s, three bags of a loaded soak lacked the last 200-1200 steps of every topic).
+MAX_DRAIN_S = 300.0
+
 # -- a mission's arguments ----------------------------------------------------------------------
 #: Arguments of a mission and their defaults: seed -1 is the nominal start; the bag is a new
 #: directory ``bags/<UTC start time>_<governor>`` (``{utc}`` in ``recorder.bag`` is that time).

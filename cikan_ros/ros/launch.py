@@ -38,8 +38,8 @@ from ..paths import shipped
 from ..tsg import Predictor
 from .bag_reader import SIM_TOPICS, check_messages, read_bag, recorded_metrics, sim_summary
 from .domain import lease_domain
-from .graph_spec import (ACCEL_CMD, ARGUMENTS, EXIT_BAD_INPUT, NODE_BY_NAME, NODES, TIME_SHIFT, UTC_FORMAT,
-                         node_parameters)
+from .graph_spec import (ACCEL_CMD, ACK_BUDGET_S, ARGUMENTS, EXIT_BAD_INPUT, MAX_DRAIN_S, NODE_BY_NAME, NODES,
+                         TIME_SHIFT, UTC_FORMAT, node_parameters)
 
 
 def _nest(flat: dict[str, Any]) -> dict[str, Any]:
@@ -175,9 +175,6 @@ class Graph:
 
     def stop_all(self) -> None:
         """Producers first, the recorder last so the bag gets everything and closes."""
-        from .graph import ACK_BUDGET_S
-        from .recorder_node import MAX_DRAIN_S
-
         # each waits for its readers' acknowledgements before it ends (graph.wait_acknowledged)
         self.stop(["sim", "governor", "controller"], timeout_s=ACK_BUDGET_S + 10.0)
         self.stop(["recorder"], timeout_s=MAX_DRAIN_S + 30.0)   # it drains all it holds, then closes

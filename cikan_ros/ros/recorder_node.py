@@ -29,15 +29,10 @@ from . import convert as cv
 from ..errors import ConfigError
 from .bag_writer import BagWriter, qos_dict
 from .graph import Readiness, qos_for, run_node
-from .graph_spec import GOVERNOR_INFO, TOPIC_TYPES, UTC_FORMAT, message_class, required_publishers
+from .graph_spec import GOVERNOR_INFO, MAX_DRAIN_S, TOPIC_TYPES, UTC_FORMAT, message_class, required_publishers
 from .params import NodeSpec, declare_config, declare_parameters, plain
 
 NAME = "recorder_node"
-#: On SIGINT/SIGTERM the recorder drains until no message came for ``recorder.drain_s``, at most
-#: this long (wall). Its producers have stopped by then, so the stream ends; a recorder starved
-#: of CPU may be far behind it, and what it still holds in its readers is part of the mission
-#: (with a cap of 10 s, three bags of a loaded soak lacked the last 200-1200 steps of every topic).
-MAX_DRAIN_S = 300.0
 #: Parameters: the groups recorder and graph of config/nodes.yaml, and the mission configuration
 #: (for the bag).
 SPEC = NodeSpec(NAME, __doc__, ("recorder", "graph"))
