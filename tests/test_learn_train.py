@@ -188,3 +188,40 @@ def test_several_datasets_are_concatenated_split_by_split(data_path: Path) -> No
     assert two.meta["labels"] == 2 * one.meta["labels"]
     assert [f["file"] for f in two.meta["files"]] == [data_path.name] * 2
     assert two.path == f"{data_path.name}+{data_path.name}"
+
+
+def test_tune_then_train_a_scenario_given_as_a_file(predictor, tmp_path: Path,
+                                                   capsys: pytest.CaptureFixture) -> None:
+    """The pipeline for a custom scenario: `cikan tune --scenario FILE` creates its study under
+    the one naming rule and `cikan train --scenario FILE --study URL` finds it (it looked for the
+    paper's name before). A scenario file named my_orbit.yaml is scenario 'my_orbit'; the study
+    is cikan-tsg-grbf-my_orbit-behind, written out here from the documented rule."""
+    import optuna
+
+    from cikan_ros.cli import main
+    from cikan_ros.config import load_config, scenario_overrides
+    from cikan_ros.learn import dataset
+
+    scenario = tmp_path / "my_orbit.yaml"   # the paper's orbit under another name: same labels
+    scenario.write_text("/**:\n  ros__parameters:\n    scenario:\n"
+                        f"      models_dir: \"{tmp_path / 'models'}\"\n")
+    mine = load_config(**scenario_overrides(str(scenario)))
+    assert mine.scenario.name == "my_orbit"
+    dataset._PREDICTORS[json.dumps(mine.flat(), sort_keys=True)] = predictor
+    df, meta = generate(mine, 120, DatasetSpec(seed=3, val_fraction=0.25, test_fraction=0.25), progress=False)
+    data = write_parquet(df, meta, tmp_path / "labels.parquet")
+    url = f"sqlite:///{tmp_path / 's.sqlite3'}"
+    assert main(["tune", "--scenario", str(scenario), "--model", "grbf", "--trials", "1", "--storage", url,
+                 "--data", str(data), "--epochs", "1", "--max-train", "0", "--json"]) == 0
+    assert optuna.get_all_study_names(url) == ["cikan-tsg-grbf-my_orbit-behind"]
+    capsys.readouterr()
+    assert main(["train", "--scenario", str(scenario), "--model", "grbf", "--data", str(data), "--study", url,
+                 "--epochs", "1", "--quiet", "--json", "--checkpoint-dir", str(tmp_path / "ck")]) == 0
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert Path(out["out"]) == tmp_path / "models" / "grbf"   # the scenario's own models directory
+    assert load_model(out["out"]).card["tuning"]["study"] == "cikan-tsg-grbf-my_orbit-behind"
+    # Flying it from ahead, where no model is: the hint names the make target that trains one.
+    assert main(["mission", "--offline", "--scenario", str(scenario), "--governor", "grbf",
+                 "--set", "mission.approach=ahead"]) == 2
+    err = capsys.readouterr().err
+    assert "make scenario-models SCENARIO=<your my_orbit scenario file> APPROACH=ahead" in err

@@ -28,7 +28,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--study", metavar="URL", default=None,
                    help="take architecture and hyper-parameters from the best trial of the Optuna "
                         "study in this storage (see `cikan tune`); explicit options override them")
-    p.add_argument("--study-name", default=None, help="study name (default cikan-tsg-MODEL)")
+    p.add_argument("--study-name", default=None,
+                   help="study name (default cikan-tsg-MODEL[-FEATURES][-SCENARIO-APPROACH]: the one "
+                        "`cikan tune` created for this model, features, scenario and side)")
     p.add_argument("--like", metavar="MODEL", default=None,
                    help="take architecture and hyper-parameters from this model's card (a shipped "
                         "family or a model directory of the same family), e.g. to train the "
@@ -105,7 +107,9 @@ def run(args: argparse.Namespace) -> int:
         from ..learn.tune import arch_and_hp_from_params, study_name_for, study_summary
 
         optuna.logging.set_verbosity(optuna.logging.WARNING)
-        name = args.study_name or study_name_for(args.model, args.features)
+        cfg_run = config_from_args(args)
+        name = args.study_name or study_name_for(args.model, args.features, cfg_run.scenario.name,
+                                                 cfg_run.mission.approach)
         try:
             study = optuna.load_study(study_name=name, storage=args.study)
         except KeyError:

@@ -16,7 +16,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--trials", type=int, required=True, help="trials to run in this process")
     p.add_argument("--storage", default="sqlite:///runs/tune.sqlite3", metavar="URL",
                    help="Optuna storage URL (default: a SQLite file under runs/)")
-    p.add_argument("--study-name", default=None, help="study name (default cikan-tsg-MODEL)")
+    p.add_argument("--study-name", default=None,
+                   help="study name (default cikan-tsg-MODEL[-FEATURES][-SCENARIO-APPROACH], the one "
+                        "`cikan train --study` looks for)")
     p.add_argument("--data", default="runs/dataset.parquet", metavar="PATH", help="dataset (Parquet)")
     p.add_argument("--features", default="vnb", choices=FEATURE_SETS)
     p.add_argument("--epochs", type=int, default=8, help="epochs per trial (schedule length)")
@@ -46,11 +48,10 @@ def run(args: argparse.Namespace) -> int:
 
     cfg = config_from_args(args)
     check_dataset_scenario(data.meta, data.path, cfg.scenario.name, cfg.mission.approach)
-    if args.study_name is None and (cfg.scenario.name, cfg.mission.approach) != ("paper", "behind"):
+    if args.study_name is None:
         from ..learn.tune import study_name_for
 
-        args.study_name = (f"{study_name_for(args.model, args.features)}-{cfg.scenario.name}"
-                           f"-{cfg.mission.approach}")
+        args.study_name = study_name_for(args.model, args.features, cfg.scenario.name, cfg.mission.approach)
     summary = run_tune(args.model, data, args.trials, args.storage, args.study_name, args.epochs,
                        args.max_train, args.trial_minutes, args.seed, args.threads, args.timeout)
     if args.json:

@@ -58,11 +58,10 @@ import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ..config import Config, Side, scenario_names
 from ..governor import (PATH_AUDIT, PATH_BISECT, PATH_INITIAL, PATH_KEEP, PATH_NN, PATH_NN_BISECT, PATH_PROBE,
-                        PATH_SEARCH,
-                        PATH_STALL, PATH_VERIFY_ZERO, PATH_ZERO, UpdateRecord, initial_update, make_record,
-                        start_clock, update_index)
-from ..config import Side
+                        PATH_SEARCH, PATH_STALL, PATH_VERIFY_ZERO, PATH_ZERO, UpdateRecord, initial_update,
+                        make_record, start_clock, update_index)
 from ..tsg import ChiefAnchor, ChiefCache, Predictor, quantise_shift
 from ..units import ns_to_seconds, seconds_to_ns as to_ns
 from .arch import FAMILIES, NumpyNet, log_shift_kernel
@@ -434,6 +433,15 @@ def nn_accept_rate(updates: Iterable[UpdateRecord]) -> float | None:
     return consulted.count(PATH_NN) / len(consulted) if consulted else None
 
 
+def train_target_args(cfg: Config) -> str:
+    """The arguments of ``make scenario-models`` that train the models this configuration flies:
+    ``SCENARIO=`` the shipped scenario's name, or, for a scenario given as a file (whose path the
+    configuration does not keep), the file's place; ``APPROACH=ahead`` from ahead."""
+    name = cfg.scenario.name
+    scenario = f"SCENARIO={name}" if name in scenario_names() else f"SCENARIO=<your {name} scenario file>"
+    return scenario + ("" if cfg.mission.approach == "behind" else f" APPROACH={cfg.mission.approach}")
+
+
 def load_learned_governor(name: str, predictor: Predictor) -> LearnedGovernor:
     """The learned governor of a shipped family (``cikan``, ``grbf``, ``rswaf``, ``relu``,
     ``gelu``: the scenario's model for the approach side, ``scenario.models_dir``/<name>[-ahead])
@@ -447,7 +455,7 @@ def load_learned_governor(name: str, predictor: Predictor) -> LearnedGovernor:
         if not (where / CARD).is_file():
             raise ModelFileError(
                 f"no {name} model for scenario {cfg.scenario.name!r}, approach {cfg.mission.approach!r} "
-                f"(looked in {where}); train one (make scenario-models SCENARIO={cfg.scenario.name}) "
+                f"(looked in {where}); train one (make scenario-models {train_target_args(cfg)}) "
                 f"or name a model directory")
         model = load_model(where)
     else:

@@ -21,9 +21,14 @@ from .train import Data, TrainConfig, train
 DEFAULT_STORAGE = "sqlite:///runs/tune.sqlite3"
 
 
-def study_name_for(family: str, features: str = "vnb") -> str:
-    """Default Optuna study of a family and feature set (state-only "vnb" keeps the old name)."""
-    return f"cikan-tsg-{family}" + ("" if features == "vnb" else f"-{features}")
+def study_name_for(family: str, features: str = "vnb", scenario: str = "paper", approach: str = "behind") -> str:
+    """The default Optuna study of a family, feature set, scenario and approach side, the one rule
+    ``cikan tune`` (which creates it) and ``cikan train --study`` (which reads it) both follow:
+    ``cikan-tsg-FAMILY[-FEATURES][-SCENARIO-APPROACH]``, the state-only features ("vnb") and the
+    paper's scenario from behind keeping the short name. A scenario given as a file is named by
+    its ``scenario.name`` (the file's stem unless it sets one)."""
+    name = f"cikan-tsg-{family}" + ("" if features == "vnb" else f"-{features}")
+    return name if (scenario, approach) == ("paper", "behind") else f"{name}-{scenario}-{approach}"
 
 
 def suggest(trial: Any, family: str, features: str = "vnb") -> tuple[Arch, dict[str, Any]]:
