@@ -439,7 +439,7 @@ def train_target_args(cfg: Config) -> str:
     configuration does not keep), the file's place; ``APPROACH=ahead`` from ahead."""
     name = cfg.scenario.name
     scenario = f"SCENARIO={name}" if name in scenario_names() else f"SCENARIO=<your {name} scenario file>"
-    return scenario + ("" if cfg.mission.approach == "behind" else f" APPROACH={cfg.mission.approach}")
+    return scenario + ("" if cfg.side is Side.BEHIND else f" APPROACH={cfg.side.approach}")
 
 
 def load_learned_governor(name: str, predictor: Predictor) -> LearnedGovernor:

@@ -5,7 +5,6 @@ its ``--help`` and the checks of a command line all read the same declarations.
 - :func:`declare_config` declares the mission configuration (read-only, described by the comments
   of ``config/cikan.yaml``) and builds the node's :class:`~cikan_ros.config.Config`;
 - :func:`declare_parameters` declares a node's groups (read-only unless named dynamic);
-  :func:`declare` one parameter that is not in ``config/nodes.yaml``;
 - :func:`parse_node_args` answers ``--help`` (usage and every parameter, without starting rclpy)
   and rejects stray arguments and unreadable params files before rclpy starts (exit code 2);
 - :func:`unknown_overrides` finds the ``-p`` and params-file entries no node uses (typos).
@@ -144,16 +143,6 @@ def declare_config(node: Any, defaults: Config | None = None) -> Config:
         node.declare_parameter(name, value, ParameterDescriptor(
             description=desc.get(name, name), read_only=True, dynamic_typing=True))
     return config_from_flat({name: plain(node.get_parameter(name).value) for name in flat})
-
-
-def declare(node: Any, name: str, default: Any, description: str, read_only: bool = True) -> Any:
-    """Declare one node parameter with a description; return its value. (The nodes' parameters
-    live in config/nodes.yaml, so that ``--help`` lists them: prefer adding one there.)"""
-    from rcl_interfaces.msg import ParameterDescriptor
-
-    node.declare_parameter(name, default, ParameterDescriptor(description=description,
-                                                              read_only=read_only))
-    return plain(node.get_parameter(name).value)
 
 
 # -- command line -------------------------------------------------------------------------------
