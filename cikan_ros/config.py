@@ -222,6 +222,69 @@ class MissionConfig:
 GRAVITY_MODELS = ("two-body", "j2")
 
 
+#: Navigation error models of the truth: a rate-limited Gauss-Markov output ("realistic") or a
+#: filter's output, constant between measurement updates and jumping at each ("filter").
+NAV_MODELS = ("realistic", "filter")
+#: How the truth's per-run errors are drawn: at random within the bounds, or pinned to a corner.
+TRUTH_DRAWS = ("random", "corner")
+#: Axes of the chief's VNB frame at the epoch that a corner's pointing error rotates about.
+CORNER_AXES = ("along", "normal", "radial")
+#: The navigation error's bounds: floors and range fractions (position, velocity).
+NAV_BOUNDS = ("nav_pos_floor_km", "nav_pos_range_fraction", "nav_vel_floor_kmps",
+              "nav_vel_range_fraction_per_s")
+
+
+@dataclass(frozen=True)
+class Corner:
+    """A corner of the declared error bounds (docs/robustness.md, "Corners"): each sign is +1 or
+    -1. ``bias``: b = bias b_max; ``axis``, ``rotation``: a rotation by rotation theta_max about
+    that axis of the chief's VNB frame at the epoch; ``disturbance``: d = disturbance d_max along
+    the chief's velocity; ``nav``: navigation error nav (b_p, b_v) along the line of sight from
+    the chief to the deputy (+: away from the chief)."""
+
+    bias: int
+    axis: str
+    rotation: int
+    disturbance: int
+    nav: int
+
+    @property
+    def name(self) -> str:
+        """The corner's name, e.g. ``b+.normal-.d+.n-``."""
+        def s(v: int) -> str:
+            return "+" if v > 0 else "-"
+        return f"b{s(self.bias)}.{self.axis}{s(self.rotation)}.d{s(self.disturbance)}.n{s(self.nav)}"
+
+
+_CORNER_SYNTAX = ("must name a corner: b+ or b-, then " + ", ".join(CORNER_AXES)
+                  + " with + or -, then d+ or d-, then n+ or n-, joined by '.' (e.g. b+.normal-.d+.n-)")
+
+
+def parse_corner(name: str) -> Corner:
+    """The :class:`Corner` of a name (``Corner.name``); ConfigError naming truth.corner."""
+    parts = name.split(".") if isinstance(name, str) else []
+    signs = {"+": 1, "-": -1}
+    ok = (len(parts) == 4 and all(len(p) >= 2 and p[-1] in signs for p in parts)
+          and parts[0][:-1] == "b" and parts[1][:-1] in CORNER_AXES and parts[2][:-1] == "d"
+          and parts[3][:-1] == "n")
+    _check(ok, "truth.corner", name, _CORNER_SYNTAX)
+    return Corner(signs[parts[0][-1]], parts[1][:-1], signs[parts[1][-1]], signs[parts[2][-1]],
+                  signs[parts[3][-1]])
+
+
+def corners(tc: "TruthConfig") -> list[Corner]:
+    """Every distinct corner of the declared bounds of ``tc``: bias sign x rotation axis x rotation
+    sign x disturbance sign x navigation sign (48). A component whose bound is 0 gives the same
+    truth at either sign (and a pointing bound 0, about any axis): only its first is kept."""
+    sides = (1, -1)
+    bias = sides if tc.bound("thrust_bias_max") > 0 else (1,)
+    pointing = [(a, s) for a in CORNER_AXES for s in sides] \
+        if tc.bound("thrust_pointing_max_deg") > 0 else [(CORNER_AXES[0], 1)]
+    dist = sides if tc.bound("disturbance_max_kmps2") > 0 else (1,)
+    nav = sides if any(tc.bound(n) > 0 for n in NAV_BOUNDS) else (1,)
+    return [Corner(b, a, r, d, n) for b in bias for a, r in pointing for d in dist for n in nav]
+
+
 @dataclass(frozen=True)
 class TruthConfig:
     """The world the simulator flies, and the declared bounds of its errors (docs/robustness.md).
@@ -229,6 +292,12 @@ class TruthConfig:
     Every error bound is multiplied by ``scale`` (0: the nominal model exactly). The simulator
     draws the errors within these bounds (seeded); robust Verify tightens the constraints by the
     same declared bounds. Units: km, s; fractions are dimensionless.
+
+    ``nav_model``: "realistic" (a Gauss-Markov output moving by at most ``nav_rate_per_s`` of
+    its bound per second) or "filter" (constant between measurement updates every
+    ``nav_update_s``, a new draw within the bound at each). ``draw``: "random" (per-run draws
+    from the run's seed) or "corner": every draw pinned to the corner named ``corner`` (a
+    :class:`Corner` name), at ``corner_fraction`` of the declared bounds (1: on them).
     """
 
     name: str = "nominal"
@@ -244,9 +313,27 @@ class TruthConfig:
     nav_vel_range_fraction_per_s: float = 0.0
     nav_correlation_s: float = 300.0
     nav_rate_per_s: float = 0.02
+    nav_model: str = "realistic"
+    nav_update_s: float = 10.0
+    draw: str = "random"
+    corner: str = ""
+    corner_fraction: float = 1.0
 
     def __post_init__(self) -> None:
         _positive("truth.nav_rate_per_s", self.nav_rate_per_s)
+        _check(self.nav_model in NAV_MODELS, "truth.nav_model", self.nav_model,
+               f"must be one of {NAV_MODELS}")
+        _positive("truth.nav_update_s", self.nav_update_s)
+        _check(self.draw in TRUTH_DRAWS, "truth.draw", self.draw, f"must be one of {TRUTH_DRAWS}")
+        if self.draw == "corner":
+            parse_corner(self.corner)   # ConfigError naming truth.corner
+        else:
+            _check(self.corner == "", "truth.corner", self.corner,
+                   "is set, but truth.draw is 'random' (set truth.draw=corner to fly a corner)")
+        _check(isinstance(self.corner_fraction, (int, float)) and 0.0 < self.corner_fraction <= 1.0,
+               "truth.corner_fraction", self.corner_fraction,
+               "must lie in (0, 1]: a corner pins the draws at this fraction of the declared bounds, "
+               "and a pin beyond them (> 1) is outside the bounds robust Verify covers")
         _check(isinstance(self.name, str) and self.name != "", "truth.name", self.name,
                "must be a non-empty string")
         _check(self.gravity in GRAVITY_MODELS, "truth.gravity", self.gravity,
@@ -275,6 +362,21 @@ class TruthConfig:
         """|applied thrust| / |commanded| at most: 1 + the declared bias bound (h2 on the truth)."""
         return 1.0 + self.bound("thrust_bias_max")
 
+    def nav_change_bound(self, t0_s: float, t1_s: float) -> float:
+        """The largest change of the navigation error from t0 to t1 >= t0 (s since the epoch),
+        as a fraction of its bound: |e(t1)/b(r1) - e(t0)/b(r0)| <= this (the error is a vector
+        in the unit ball times the bound at the true range). ``realistic``: the rate limit,
+        ``nav_rate_per_s`` (t1 - t0), at most 2; ``filter``: 2 when a measurement update
+        (t = j ``nav_update_s``, j >= 1) falls in (t0, t1], else 0 (constant between updates)."""
+        if self.nav_model == "realistic":
+            return min(2.0, self.nav_rate_per_s * (t1_s - t0_s))
+        return 2.0 if self.nav_update_index(t1_s) > self.nav_update_index(t0_s) else 0.0
+
+    def nav_update_index(self, t_s: float) -> int:
+        """The filter model's measurement update in force at t (s since the epoch): updates come
+        at t = j ``nav_update_s``, j = 0, 1, ...; the error is constant from one to the next."""
+        return math.floor(t_s / self.nav_update_s)
+
     @property
     def effective_gravity(self) -> str:
         """The gravity the truth flies: ``gravity``, but two-body at scale 0 (the nominal model)."""
@@ -285,9 +387,7 @@ class TruthConfig:
         """True when the truth equals the prediction model (two-body, every bound 0)."""
         return self.effective_gravity == "two-body" and all(
             self.bound(n) == 0.0 for n in ("thrust_bias_max", "thrust_pointing_max_deg",
-                                           "disturbance_max_kmps2", "nav_pos_floor_km",
-                                           "nav_pos_range_fraction", "nav_vel_floor_kmps",
-                                           "nav_vel_range_fraction_per_s"))
+                                           "disturbance_max_kmps2", *NAV_BOUNDS))
 
 
 def prediction_gravity(cfg: "Config") -> str:

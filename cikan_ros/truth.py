@@ -14,8 +14,23 @@ same seed gives the same run, in the offline loop and in sim_node alike):
 - a navigation error on the deputy's state, what a relative-navigation filter outputs: a
   Gauss-Markov vector per position and velocity (correlation ``truth.nav_correlation_s``),
   scaled by the bounds b_p(r) = floor + fraction r (velocity likewise) at the true range r and
-  clipped to them, changing by at most ``truth.nav_rate_per_s`` of the bound per second. The chief's own state is measured exactly (its absolute navigation error is
-  common to both spacecraft and not modelled).
+  clipped to them, changing by at most ``truth.nav_rate_per_s`` of the bound per second
+  (``truth.nav_model`` realistic); or, ``truth.nav_model`` filter, what a filter outputs between
+  measurement updates: constant, and a new draw within the bound (a third of it per axis, clipped
+  to the unit ball) at each update, every ``truth.nav_update_s``. The chief's own state is
+  measured exactly (its absolute navigation error is common to both spacecraft and not
+  modelled).
+
+``truth.draw`` corner pins every per-run draw to a corner of the declared bounds
+(:class:`~cikan_ros.config.Corner`, docs/robustness.md "Corners, the filter navigation model and
+between-sample checks"), at ``truth.corner_fraction`` of them: b = +-b_max; a rotation by
++-theta_max about one axis of the chief's VNB frame at the epoch (along: its velocity, normal: the
+orbit normal, radial: the third, in plane); a constant |d| = d_max along +-the chief's velocity at
+each step (the along-track push, as differential drag acts, which drifts the deputy along the
+approach corridor); a navigation error of exactly b_p(r), b_v(r) at the true range r along +-the
+line of sight from the chief to the deputy (the direction that changes the measured range and
+range rate, what the cone, the approach speed and the docking test are judged on); under the
+filter model its sign flips at every update (the largest jump, 2 b).
 
 Every bound is the configured one times ``truth.scale``; the Gauss-Markov processes have a
 standard deviation of a third of their bound per axis, so the clip acts rarely and the bound
@@ -30,9 +45,9 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from .config import Config
+from .config import CORNER_AXES, Config, Corner, parse_corner
 from .dynamics import Plant
-from .orbit import KeplerOrbit
+from .orbit import KeplerOrbit, vnb_frame
 
 #: Stream of the truth's random numbers (independent of the Monte Carlo start's stream).
 TRUTH_STREAM = 0x7472757468
@@ -87,17 +102,50 @@ class Truth:
             zero = np.zeros(3)
             for k in range(1, n):
                 self.chief[k] = self.plant.step(self.chief[k - 1], zero, self.period)
+        #: Index of the navigation update in force at each sample (the filter model's draw).
+        self.nav_update = np.array([tc.nav_update_index(t) for t in times])
+        #: The corner flown (``truth.draw`` corner), else None.
+        self.corner: Corner | None = None
+        #: Navigation error per sample as a signed fraction of its bound along the line of sight
+        #: (corners), else None; ``nav_pos``, ``nav_vel``: the error per sample in the unit ball
+        #: (random draws), else None. :meth:`nav_error` reads either.
+        self.nav_sign: NDArray | None = None
+        self.nav_pos: NDArray | None = None
+        self.nav_vel: NDArray | None = None
+        if tc.draw == "corner":
+            self._pin_corner(parse_corner(tc.corner))
+            return
         rng = np.random.default_rng([TRUTH_STREAM, 0 if seed is None else 1, abs(int(seed or 0))])
         self.bias = tc.bound("thrust_bias_max") * rng.uniform(-1.0, 1.0)
         axis = rng.normal(size=3)
-        axis /= np.linalg.norm(axis)
+        self.pointing_axis = axis / np.linalg.norm(axis)
         self.pointing_rad = math.radians(tc.bound("thrust_pointing_max_deg")) * rng.uniform(0.0, 1.0)
-        self.thrust_matrix = (1.0 + self.bias) * rotation(axis, self.pointing_rad)
+        self.thrust_matrix = (1.0 + self.bias) * rotation(self.pointing_axis, self.pointing_rad)
         self.disturbance = tc.bound("disturbance_max_kmps2") * gauss_markov(
             rng, n, self.period, tc.disturbance_correlation_s)
-        step = tc.nav_rate_per_s * self.period
-        self.nav_pos = gauss_markov(rng, n, self.period, tc.nav_correlation_s, step)
-        self.nav_vel = gauss_markov(rng, n, self.period, tc.nav_correlation_s, step)
+        if tc.nav_model == "realistic":
+            step = tc.nav_rate_per_s * self.period
+            self.nav_pos = gauss_markov(rng, n, self.period, tc.nav_correlation_s, step)
+            self.nav_vel = gauss_markov(rng, n, self.period, tc.nav_correlation_s, step)
+        else:
+            draws = rng.normal(0.0, 1.0 / 3.0, (2, int(self.nav_update[-1]) + 1, 3))
+            draws /= np.maximum(1.0, np.linalg.norm(draws, axis=-1, keepdims=True))
+            self.nav_pos, self.nav_vel = draws[0][self.nav_update], draws[1][self.nav_update]
+
+    def _pin_corner(self, corner: Corner) -> None:
+        """Pin every per-run draw to ``corner`` at ``truth.corner_fraction`` of the bounds
+        (module docstring)."""
+        tc = self.tc
+        f = tc.corner_fraction
+        self.corner = corner
+        self.bias = corner.bias * f * tc.bound("thrust_bias_max")
+        self.pointing_axis = corner.rotation * vnb_frame(self.chief[0])[CORNER_AXES.index(corner.axis)]
+        self.pointing_rad = f * math.radians(tc.bound("thrust_pointing_max_deg"))
+        self.thrust_matrix = (1.0 + self.bias) * rotation(self.pointing_axis, self.pointing_rad)
+        along = self.chief[:, 3:] / np.linalg.norm(self.chief[:, 3:], axis=1, keepdims=True)
+        self.disturbance = corner.disturbance * f * tc.bound("disturbance_max_kmps2") * along
+        flips = 1.0 if tc.nav_model == "realistic" else np.where(self.nav_update % 2 == 0, 1.0, -1.0)
+        self.nav_sign = corner.nav * f * np.broadcast_to(flips, self.nav_update.shape)
 
     def chief_state(self, k: int) -> NDArray:
         """The true chief at t_k (6,), km, km/s, ECI."""
@@ -117,7 +165,22 @@ class Truth:
         cov = np.diag([(bp / 3.0) ** 2] * 3 + [(bv / 3.0) ** 2] * 3)
         if self.nominal:
             return x_d, cov
-        return np.concatenate([x_d[:3] + bp * self.nav_pos[k], x_d[3:] + bv * self.nav_vel[k]]), cov
+        e_p, e_v = self._nav_error(k, x_d, rng, bp, bv)
+        return np.concatenate([x_d[:3] + e_p, x_d[3:] + e_v]), cov
+
+    def nav_error(self, k: int, x_d: NDArray) -> tuple[NDArray, NDArray]:
+        """The navigation error (km, km/s; ECI) on the true deputy x_d at t_k: measured - true."""
+        rng = float(np.linalg.norm(x_d[:3] - self.chief[k, :3]))
+        return self._nav_error(k, x_d, rng, *self.nav_bounds(rng))
+
+    def _nav_error(self, k: int, x_d: NDArray, rng: float, bp: float, bv: float
+                   ) -> tuple[NDArray, NDArray]:
+        if self.nav_sign is None:
+            return bp * self.nav_pos[k], bv * self.nav_vel[k]
+        # a corner: along the line of sight (the chief's velocity if the deputy sits on the chief)
+        rel = x_d[:3] - self.chief[k, :3]
+        los = rel / rng if rng > 0.0 else self.chief[k, 3:] / np.linalg.norm(self.chief[k, 3:])
+        return self.nav_sign[k] * bp * los, self.nav_sign[k] * bv * los
 
     def measure_chief(self, k: int) -> NDArray:
         """The chief state as navigation gives it at t_k (exact; module docstring)."""
