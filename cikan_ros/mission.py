@@ -240,6 +240,7 @@ class MissionResult:
             "truth": cfg.truth.name,
             "truth_scale": cfg.truth.scale,
             "robust": cfg.tsg.robust,
+            **({"corner": cfg.truth.corner} if cfg.truth.draw == "corner" else {}),
         }
 
     def update_states(self, active_only: bool = True) -> list["UpdateState"]:
@@ -341,7 +342,8 @@ def run_mission(governor: Governor, x_d0: NDArray, seed: int | None = None,
     """Closed loop from the true deputy state x_d0 at t = 0 for T_sim: the :class:`ClosedLoop`
     step on the states the :class:`Truth` of ``seed`` measures, the truth stepped under the
     applied thrust (ZOH). The governor and the controller see what crosses the ROS boundary (SI
-    and back), as the nodes do; violations, docking and Delta-V are judged on the truth.
+    and back), as the nodes do; violations, docking and Delta-V are judged on the truth. A
+    ``truth`` given (e.g. pinned to a corner) is flown instead of the seed's draw.
     """
     pred = governor.predictor
     cfg = pred.config
@@ -387,5 +389,6 @@ def run_mission(governor: Governor, x_d0: NDArray, seed: int | None = None,
     m = margins(x_d, x_c, u, cfg.constraints, limit, cfg.side)
     m.h2[-1] = math.nan  # no command is applied at the final instant
     nominal = truth.nominal
-    return MissionResult(cfg, governor.name, t, x_d, x_c, u, taus, m, first, np.array(update_t),
+    # judged in the truth's configuration: the governor's, and how the truth drew its errors
+    return MissionResult(truth.config, governor.name, t, x_d, x_c, u, taus, m, first, np.array(update_t),
                          updates, None if nominal else seen_d, None if nominal else seen_c, limit)

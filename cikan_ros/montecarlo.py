@@ -5,6 +5,10 @@ flies the same starts and ``cikan mission --seed S+i`` replays one run. Each run
 ``<out>/<governor>/seed_<n>.json`` (metrics and the configuration) and ``seed_<n>.npz`` (the
 trajectory, constraint values and update records; numpy arrays only, loaded without pickle), so
 tables can be rebuilt without re-running; a result whose configuration matches is reused.
+
+A corner campaign (``corners=True``) flies every corner of the truth's declared bounds
+(:func:`cikan_ros.config.corners`) on the same starts: the run of corner C is
+``<out>/<C>/<governor>/seed_<n>.json``, its metrics labelled ``corner``.
 """
 
 from __future__ import annotations
@@ -17,13 +21,14 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from .config import Config, config_from_flat
+from .config import Config, config_from_flat, corners
 from .errors import CikanError, NoFeasibleShiftError
 from .governor import Governor, warm_up
 from .mission import MissionResult, nominal_start, run_mission, sample_start
 from .parallel import ordered_map
 from .registry import GOVERNOR_NAMES, make_governor
 from .robust import UnstableLoopError
+from .truth import Truth
 
 _GOVERNORS: dict[tuple[str, str], Governor] = {}
 
@@ -81,13 +86,19 @@ def load_run_arrays(npz_path: str | Path) -> dict[str, np.ndarray]:
         return {k: data[k] for k in data.files}
 
 
+#: Parameters of how the truth draws its errors: the governor does not know them (a corner
+#: campaign's governors are one per configuration of the bounds, whatever the corner).
+_DRAW_KEYS = ("truth.draw", "truth.corner", "truth.corner_fraction")
+
+
 def process_governor(config_json: str, name: str) -> Governor:
     """The governor ``name`` under a configuration (flat JSON), made once per worker process and
     warmed up, so that no run pays for loading the kernels or the network."""
-    key = (config_json, name)
+    flat = {k: v for k, v in json.loads(config_json).items() if k not in _DRAW_KEYS}
+    key = (json.dumps(flat, sort_keys=True), name)
     gov = _GOVERNORS.get(key)
     if gov is None:
-        gov = _GOVERNORS[key] = make_governor(name, config_from_flat(json.loads(config_json)))
+        gov = _GOVERNORS[key] = make_governor(name, config_from_flat(flat))
         warm_up(gov, nominal_start(gov.predictor), gov.predictor.orbit.state(0.0))
     return gov
 
@@ -106,7 +117,8 @@ def run_one(task: RunTask) -> dict[str, Any]:
     try:
         gov = process_governor(task.config_json, task.governor)
         x0 = sample_start(gov.predictor, task.seed)
-        return save_run(run_mission(gov, x0, task.seed), task.seed, json_path, npz_path)
+        truth = Truth(config_from_flat(flat), task.seed)   # the run's draws (or its corner)
+        return save_run(run_mission(gov, x0, task.seed, truth), task.seed, json_path, npz_path)
     except (NoFeasibleShiftError, UnstableLoopError) as exc:
         # Robust Verify refuses the start (no feasible shift) or the declared bounds (no tube):
         # a result of the campaign, not a failure of it.
@@ -115,25 +127,40 @@ def run_one(task: RunTask) -> dict[str, Any]:
 
 def save_refused(task: RunTask, reason: str, json_path: Path) -> dict[str, Any]:
     """Record a run the governor refused to fly (``refused``: the one-line reason)."""
+    flat = json.loads(task.config_json)
     metrics = {"governor": governor_label(task.governor), "seed": task.seed, "refused": reason,
                "success": False}
+    if flat.get("truth.draw") == "corner":
+        metrics["corner"] = flat["truth.corner"]
     json_path.parent.mkdir(parents=True, exist_ok=True)
     tmp = json_path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps({"metrics": metrics, "config": json.loads(task.config_json)}, indent=1))
+    tmp.write_text(json.dumps({"metrics": metrics, "config": flat}, indent=1))
     tmp.replace(json_path)
     return metrics
 
 
+def campaign_variants(cfg: Config, out_dir: str | Path, at_corners: bool = False
+                      ) -> list[tuple[Config, Path]]:
+    """The configurations a campaign flies and where their runs go: ``cfg`` into ``out_dir``,
+    or with ``at_corners`` every corner of its truth's bounds into ``out_dir/<corner>``."""
+    if not at_corners:
+        return [(cfg, Path(out_dir))]
+    return [(cfg.replace(**{"truth.draw": "corner", "truth.corner": c.name}), Path(out_dir) / c.name)
+            for c in corners(cfg.truth)]
+
+
 def run_campaign(cfg: Config, governors: list[str], runs: int, seed: int, out_dir: str | Path,
-                 workers: int = 1, dask_address: str | None = None, progress: bool = True
-                 ) -> dict[str, list[dict[str, Any]]]:
-    """All runs of all governors: {governor label: [metrics of run 0 .. runs-1]}."""
+                 workers: int = 1, dask_address: str | None = None, progress: bool = True,
+                 at_corners: bool = False) -> dict[str, list[dict[str, Any]]]:
+    """All runs of all governors: {governor label: [metrics of run 0 .. runs-1]}; with
+    ``at_corners``, of every corner in turn (each run's metrics name its ``corner``)."""
     from tqdm import tqdm
 
     if runs < 1:
         raise CikanError(f"--runs must be >= 1, got {runs}")
-    cfg_json = json.dumps(cfg.flat(), sort_keys=True)
-    tasks = [RunTask(cfg_json, g, seed + i, str(out_dir)) for g in governors for i in range(runs)]
+    tasks = [RunTask(json.dumps(c.flat(), sort_keys=True), g, seed + i, str(d))
+             for c, d in campaign_variants(cfg, out_dir, at_corners)
+             for g in governors for i in range(runs)]
     out: dict[str, list[dict[str, Any]]] = {governor_label(g): [] for g in governors}
     results: Iterator[dict[str, Any]] = ordered_map(run_one, tasks, workers, dask_address)
     with tqdm(total=len(tasks), unit="run", desc="cikan montecarlo", disable=not progress) as bar:

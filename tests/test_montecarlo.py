@@ -95,3 +95,36 @@ def test_governor_labels_are_distinct_directories():
     assert governor_label("models/leo/cikan-ahead") == "cikan-ahead"
     assert governor_label("m/relu.safetensors") == "m-relu"
     assert governor_label("relu.safetensors") == "relu"
+
+
+def test_corner_campaign_flies_every_corner_on_the_same_starts(tmp_path):
+    """`cikan montecarlo --corners` as a user runs it: one run per corner of the bounds (pointing
+    and disturbance bounds 0 leave bias x navigation signs: 4), labelled, and `cikan report
+    --corners` tabulates them per corner."""
+    import subprocess
+    import sys
+
+    cikan = [sys.executable, "-m", "cikan_ros.cli"]
+    truth = ["--truth", "realistic", "--set", "truth.thrust_pointing_max_deg=0", "--set",
+             "truth.disturbance_max_kmps2=0", "--set", "mission.duration_s=300"]
+    out = subprocess.run([*cikan, "montecarlo", "--corners", "--runs", "1", "--seed", "3", *truth,
+                          "--out", str(tmp_path / "mc"), "--json"], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    names = {"b+.along+.d+.n+", "b+.along+.d+.n-", "b-.along+.d+.n+", "b-.along+.d+.n-"}
+    assert {p.name for p in (tmp_path / "mc").iterdir() if p.is_dir()} == names
+    runs = {n: json.loads((tmp_path / "mc" / n / "conventional" / "seed_00003.json").read_text())
+            for n in names}
+    assert all(r["metrics"]["corner"] == n and r["config"]["truth.corner"] == n for n, r in runs.items())
+    # the same start, four different truths
+    assert len({r["metrics"]["final_distance_m"] for r in runs.values()}) == 4
+    summary = json.loads(out.stdout)["conventional"]
+    assert summary["runs"] == 4 and set(summary["corners"]) == names | {"all corners"}
+    rep = subprocess.run([*cikan, "report", str(tmp_path / "mc"), "--corners", "--out", str(tmp_path / "doc")],
+                         capture_output=True, text=True, timeout=120)
+    assert rep.returncode == 0, rep.stderr
+    page = (tmp_path / "doc" / "corners.md").read_text()
+    assert all(f"| conventional | `{n}` | 1 | 0 |" in page for n in names)
+    bad = subprocess.run([*cikan, "montecarlo", "--corners", "--runs", "1", *truth, "--set", "truth.draw=corner",
+                          "--set", "truth.corner=b+.normal+.d+.n+", "--out", str(tmp_path / "bad")],
+                         capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "leave truth.draw random" in bad.stderr

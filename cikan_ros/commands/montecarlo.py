@@ -24,25 +24,40 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--dask", metavar="ADDRESS", default=None, help="Dask scheduler, e.g. tcp://host:8786")
     p.add_argument("--out", required=True, metavar="DIR", help="directory for per-run results and summary")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+    p.add_argument("--corners", action="store_true",
+                   help="fly every corner of the truth's declared bounds (truth.draw=corner; "
+                        "docs/robustness.md) on the same starts, into OUT/<corner>/; the summary "
+                        "adds a table per corner")
     add_config_args(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..analysis.corners import corner_rows, markdown_corner_table
+    from ..errors import CikanError
     from ..registry import campaign_names, shipped_names
     from ..montecarlo import markdown_summary, run_campaign, summarise
 
     cfg = config_from_args(args)
+    if args.corners and cfg.truth.draw == "corner":
+        raise CikanError("--corners flies every corner: leave truth.draw random")
     governors = (campaign_names() if args.governor == "all" else shipped_names(cfg)
                  if args.governor == "shipped" else args.governor.split(","))
-    results = run_campaign(cfg, governors, args.runs, args.seed, args.out, args.workers, args.dask)
-    summaries = {g: summarise(runs) for g, runs in results.items()}
+    results = run_campaign(cfg, governors, args.runs, args.seed, args.out, args.workers, args.dask,
+                           at_corners=args.corners)
+    summaries: dict = {g: summarise(runs) for g, runs in results.items()}
+    text = markdown_summary(summaries)
+    if args.corners:
+        rows = corner_rows(results)
+        for g in summaries:
+            summaries[g]["corners"] = {r["corner"]: r for r in rows if r["governor"] == g}
+        text += "\n" + markdown_corner_table(rows)
     out = Path(args.out)
     (out / "summary.json").write_text(json.dumps(summaries, indent=1))
-    (out / "summary.md").write_text(markdown_summary(summaries))
+    (out / "summary.md").write_text(text)
     if args.json:
         print(dumps(summaries))
     else:
-        print(markdown_summary(summaries), end="")
+        print(text, end="")
         print(f"per-run results and summary in {out}/")
     return 0

@@ -17,8 +17,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--robustness", action="store_true",
                    help="DIR holds a robustness campaign (one `cikan montecarlo` output per truth "
                         "scale and Verify, `make robustness`): write robustness.md and .png")
-    p.add_argument("--name", default="robustness", metavar="NAME",
-                   help="with --robustness: the page's and figure's file name (NAME.md, NAME.png)")
+    p.add_argument("--corners", action="store_true",
+                   help="DIR holds a corner campaign (`cikan montecarlo --corners`, `make corners`): "
+                        "write corners.md, per corner and governor")
+    p.add_argument("--name", default=None, metavar="NAME",
+                   help="with --robustness or --corners: the page's (and figure's) file name "
+                        "(NAME.md, NAME.png; default robustness, corners)")
     p.add_argument("--config", default=None, metavar="PATH",
                    help="configuration of bags that do not carry their own (default: the shipped one)")
     p.add_argument("--scenario", metavar="NAME|FILE", default=None,
@@ -76,14 +80,18 @@ def run(args: argparse.Namespace) -> int:
                           "; per-campaign tables in the subdirectories.*\n")
         print(f"report: {page}")
         return 0
-    if args.robustness:
+    if args.robustness or args.corners:
+        from ..analysis.corners import write_corners
         from ..analysis.robustness import write_robustness
         from ..errors import CikanError
 
-        if not args.name or "/" in args.name or args.name.startswith("."):
-            raise CikanError(f"--name must be a plain file name, got {args.name!r}")
-
-        page = write_robustness(args.source, args.out, notes, args.title, args.name)
+        if args.robustness and args.corners:
+            raise CikanError("--robustness and --corners read different campaigns: give one")
+        name = args.name if args.name is not None else "corners" if args.corners else "robustness"
+        if not name or "/" in name or name.startswith("."):
+            raise CikanError(f"--name must be a plain file name, got {name!r}")
+        write = write_corners if args.corners else write_robustness
+        page = write(args.source, args.out, notes, args.title, name)
     else:
         page = write_report(args.source, args.out, cfg, args.title, notes, figures=not args.tables_only)
     print(f"report: {page}")
