@@ -130,6 +130,18 @@ def rk4_batch_kernel(x: NDArray, u: NDArray, dt: float, substeps: int, mu: float
         rk4_kernel(x[b], u[b], dt, substeps, mu, out[b], j2r2)
 
 
+@nb.njit(cache=True)
+def rk4_path_kernel(x: NDArray, u: NDArray, dt: float, substeps: int, mu: float, out: NDArray,
+                    j2r2: float = 0.0) -> None:
+    """:func:`rk4_kernel` keeping every substep: out (substeps + 1, 6) holds x and the states
+    after each of the ``substeps`` equal steps; the last row is :func:`rk4_kernel`'s answer, bit
+    for bit (each substep is the same operations on the same numbers)."""
+    out[0] = x
+    h = dt / substeps
+    for j in range(substeps):
+        rk4_kernel(out[j], u, h, 1, mu, out[j + 1], j2r2)
+
+
 def rk4_step(x: ArrayLike, u: ArrayLike, dt: float, mu: float, substeps: int = 1,
              j2r2: float = 0.0) -> NDArray:
     """One ZOH step of RK4 for one state (6,) or a batch of trajectories (B, 6) with u (B, 3);
@@ -179,3 +191,19 @@ class Plant:
         if self.method == "rk4":
             return rk4_step(x, u, dt, self.mu, self.substeps, self.j2r2)
         return dop853_step(x, u, dt, self.mu, j2=self.j2r2 != 0.0)
+
+    def path(self, x: NDArray, u: NDArray, dt: float) -> NDArray:
+        """The states (substeps + 1, 6) at 0, dt/substeps, ..., dt with u held constant: RK4's
+        own substeps (the last row is :meth:`step`'s answer, bit for bit), or DOP853's dense
+        output at those instants (the last row within its tolerance of :meth:`step`'s)."""
+        if self.method == "rk4":
+            out = np.empty((self.substeps + 1, 6))
+            rk4_path_kernel(np.ascontiguousarray(x, dtype=float),
+                            np.ascontiguousarray(u, dtype=float), float(dt), int(self.substeps),
+                            float(self.mu), out, float(self.j2r2))
+            return out
+        u = np.asarray(u, dtype=float)
+        sol = solve_ivp(lambda _t, y: two_body_rhs(y, u, self.mu, self.j2r2 != 0.0), (0.0, float(dt)),
+                        np.asarray(x, dtype=float), method="DOP853", rtol=1e-10, atol=1e-10,
+                        t_eval=np.linspace(0.0, float(dt), self.substeps + 1))
+        return sol.y.T

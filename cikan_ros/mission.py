@@ -171,6 +171,9 @@ class MissionResult:
     x_c_seen: NDArray | None = None
     #: |applied thrust| allowed on the truth: u_max times 1 + the declared bias bound (km/s^2).
     thrust_limit: float | None = None
+    #: (K+1,) truth states violating h1 or h3 strictly between t_k and t_{k+1}, at the plant's
+    #: substeps (:func:`between_violations`; last entry 0; NaN where unknown); None: not judged.
+    between: NDArray | None = None
 
     @property
     def thrust_limit_factor(self) -> float:
@@ -184,10 +187,10 @@ class MissionResult:
         dist = np.linalg.norm(rel[:, :3], axis=1)
         speed = np.linalg.norm(rel[:, 3:], axis=1)
         m = self.margins
-        h1_bad = m.h1_normalised > cfg.constraints.plant_h1_tolerance
-        h3_bad = m.h3 > cfg.constraints.plant_h3_tolerance_kmps
+        h1_bad, h3_bad = state_violations(m, cfg)
         h2_bad = m.h2 > 1e-12 * cfg.control.u_max_kmps2 * self.thrust_limit_factor
         violations = int(np.count_nonzero(h1_bad | h2_bad | h3_bad))
+        between = self.between
         zero_idx = np.flatnonzero(self.tau == 0.0)
         tau_zero = bool(self.tau[-1] == 0.0)
         at_dock = docked(self.x_d, self.x_c, cfg)
@@ -208,6 +211,8 @@ class MissionResult:
             "violations": violations,
             "violations_h1": int(np.count_nonzero(h1_bad)),
             "violations_h3": int(np.count_nonzero(h3_bad)),
+            "violations_between": int(np.sum(between)) if between is not None
+            and np.all(np.isfinite(between)) else None,
             "final_distance_m": float(dist[-1] * 1e3),
             "final_speed_mps": float(speed[-1] * 1e3),
             "delta_v_kmps": dv,
@@ -249,6 +254,23 @@ class MissionResult:
         x_c = self.x_c if self.x_c_seen is None else self.x_c_seen
         return update_states(self.config, self.t, x_d, x_c,
                              [(r.k, r.tau_prev, r.tau_s) for r in self.updates], active_only)
+
+
+def state_violations(m: Margins, cfg: Config) -> tuple[NDArray, NDArray]:
+    """(h1 violated, h3 violated) per row of the margins of truth states: beyond the plant's
+    tolerances (a constraint not evaluated, NaN, is not violated)."""
+    return (m.h1_normalised > cfg.constraints.plant_h1_tolerance,
+            m.h3 > cfg.constraints.plant_h3_tolerance_kmps)
+
+
+def between_violations(cfg: Config, x_d_path: NDArray, x_c_path: NDArray) -> int:
+    """Truth states violating h1 or h3 strictly between two control samples: rows 1 .. S-1 of
+    the deputy's and the chief's states at the plant's substeps (:meth:`Truth.deputy_path`,
+    :meth:`Truth.chief_path`; the samples themselves, rows 0 and S, are judged as ``violations``).
+    h2 is a property of the command, judged once per sample."""
+    m = margins(x_d_path[1:-1], x_c_path[1:-1], np.zeros(3), cfg.constraints, 1.0, cfg.side)
+    h1_bad, h3_bad = state_violations(m, cfg)
+    return int(np.count_nonzero(h1_bad | h3_bad))
 
 
 @dataclass(frozen=True)
@@ -360,6 +382,7 @@ def run_mission(governor: Governor, x_d0: NDArray, seed: int | None = None,
     seen_d = np.empty((n_steps + 1, 6))
     seen_c = np.empty((n_steps + 1, 6))
     u = np.zeros((n_steps + 1, 3))
+    between = np.zeros(n_steps + 1)
     taus = np.empty(n_steps + 1)
     updates: list[UpdateRecord] = []
     update_t: list[float] = []
@@ -380,7 +403,9 @@ def run_mission(governor: Governor, x_d0: NDArray, seed: int | None = None,
         x_d[k] = x
         taus[k] = tau
         u[k] = truth.applied_thrust(through_si(loop.command(k, tau, x_seen, xc_seen)))
-        x = truth.step_deputy(k, x, u[k])
+        path = truth.deputy_path(k, x, u[k])
+        between[k] = between_violations(cfg, path, truth.chief_path(k))
+        x = path[-1]
     x_d[-1] = x
     taus[-1] = tau
     seen_d[-1] = truth.measure_deputy(n_steps, x)[0]
@@ -391,4 +416,5 @@ def run_mission(governor: Governor, x_d0: NDArray, seed: int | None = None,
     nominal = truth.nominal
     # judged in the truth's configuration: the governor's, and how the truth drew its errors
     return MissionResult(truth.config, governor.name, t, x_d, x_c, u, taus, m, first, np.array(update_t),
-                         updates, None if nominal else seen_d, None if nominal else seen_c, limit)
+                         updates, None if nominal else seen_d, None if nominal else seen_c, limit,
+                         between)

@@ -170,16 +170,24 @@ def run_campaign(cfg: Config, governors: list[str], runs: int, seed: int, out_di
     return out
 
 
+def between_total(runs: list[dict[str, Any]]) -> int | None:
+    """Truth states violating between samples over flown runs (None: some run was stored
+    before the truth was judged between samples)."""
+    between = [r.get("violations_between") for r in runs]
+    return None if None in between else sum(int(b) for b in between)
+
+
 def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
     """Campaign figures of one governor (SPEC §9): success count, violations, dV, margins, times,
     over the runs it flew; ``refused``: runs it refused (no feasible start under robust Verify)."""
     refused = sum(1 for r in runs if "refused" in r)
     runs = [r for r in runs if "refused" not in r]
     if not runs:
-        return {"runs": 0, "refused": refused, "successes": 0, "violations": 0}
+        return {"runs": 0, "refused": refused, "successes": 0, "violations": 0, "violations_between": 0}
 
     def col(key: str) -> np.ndarray:
         return np.array([r[key] for r in runs if r.get(key) is not None], dtype=float)
+
 
     dv = col("delta_v_kmps")
     n_updates = col("updates")
@@ -197,6 +205,7 @@ def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
         "refused": refused,
         "successes": int(sum(bool(r["success"]) for r in runs)),
         "violations": int(col("violations").sum()),
+        "violations_between": between_total(runs),
         "delta_v_kmps_mean": float(dv.mean()),
         "delta_v_kmps_std": float(dv.std(ddof=1)) if dv.size > 1 else 0.0,
         "delta_v_kmps_max": float(dv.max()),
@@ -222,16 +231,17 @@ def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
 
 def markdown_summary(summaries: dict[str, dict[str, Any]]) -> str:
     """A Markdown table of campaign figures, one row per governor."""
-    head = ("| governor | runs | success | violations | ΔV mean (km/s) | ΔV max | min h1 margin | max h3 (km/s) "
-            "| update ms mean / max | active ms mean / max |")
-    lines = [head, "|" + "---|" * 10]
+    head = ("| governor | runs | success | violations | between samples | ΔV mean (km/s) | ΔV max "
+            "| min h1 margin | max h3 (km/s) | update ms mean / max | active ms mean / max |")
+    lines = [head, "|" + "---|" * 11]
     for g, s in summaries.items():
         if not s["runs"]:
-            lines.append(f"| {g} | 0 ({s['refused']} refused) | 0 | 0 | - | - | - | - | - | - |")
+            lines.append(f"| {g} | 0 ({s['refused']} refused) | 0 | 0 | 0 | - | - | - | - | - | - |")
             continue
+        between = "-" if s["violations_between"] is None else s["violations_between"]
         lines.append(
             f"| {g} | {s['runs']}{f' ({r} refused)' if (r := s['refused']) else ''} | {s['successes']} "
-            f"| {s['violations']} | {s['delta_v_kmps_mean']:.4f} "
+            f"| {s['violations']} | {between} | {s['delta_v_kmps_mean']:.4f} "
             f"| {s['delta_v_kmps_max']:.4f} | {s['min_h1_margin']:.2e} | {s['max_h3']:.2e} "
             f"| {s['update_ms_mean']:.3f} / {s['update_ms_max']:.2f} "
             f"| {s['active_update_ms_mean']:.3f} / {s['active_update_ms_max']:.2f} |")

@@ -192,8 +192,19 @@ class Truth:
             return u
         return self.thrust_matrix @ u
 
-    def step_deputy(self, k: int, x_d: NDArray, u_applied: NDArray) -> NDArray:
-        """The true deputy at t_{k+1} from x_d at t_k under the applied thrust and the disturbance."""
+    def deputy_path(self, k: int, x_d: NDArray, u_applied: NDArray) -> NDArray:
+        """The true deputy (S + 1, 6) at the plant's substeps t_k + j T_c / S, j = 0 .. S
+        (S = ``mission.plant_substeps``) from x_d at t_k under the applied thrust and the
+        disturbance; the last row is the deputy at t_{k+1}."""
         if self.nominal:
-            return self.plant.step(x_d, u_applied, self.period)
-        return self.plant.step(x_d, u_applied + self.disturbance[k], self.period)
+            return self.plant.path(x_d, u_applied, self.period)
+        return self.plant.path(x_d, u_applied + self.disturbance[k], self.period)
+
+    def chief_path(self, k: int) -> NDArray:
+        """The true chief (S + 1, 6) at the plant's substeps of control period k (as
+        :meth:`deputy_path`): the Kepler orbit there (two-body), or its integration's own
+        substeps from t_k (J2; the last row is ``chief[k + 1]``, bit for bit)."""
+        if self.tc.effective_gravity == "two-body":
+            s = self.plant.substeps
+            return self.orbit.state(np.array([(k + j / s) * self.period for j in range(s + 1)]))
+        return self.plant.path(self.chief[k], np.zeros(3), self.period)

@@ -5,8 +5,9 @@ under the configured gravity, thruster errors and disturbance, ZOH), owns the lo
 Step k: publish /clock = t_k, the MEASURED states on /chief/odom and /deputy/odom stamped t_k (SI,
 ECI, with the navigation covariance) and the true ones on /truth/chief/odom and /truth/deputy/odom;
 wait for the /deputy/accel_cmd stamped t_k; apply it through the thrusters (/truth/deputy/accel:
-the acceleration as applied); log the constraint margins on the truth and the applied thrust in
-/diagnostics; integrate to t_{k+1}. A command that does not come within ``sim.command_deadline_s`` (wall) is
+the acceleration as applied); integrate to t_{k+1}; log the constraint margins on the truth, the
+applied thrust and the truth states violating h1 or h3 at the plant's substeps strictly between
+t_k and t_{k+1} (``between_violations``: the substeps are not recorded) in /diagnostics. A command that does not come within ``sim.command_deadline_s`` (wall) is
 replaced by zero thrust and reported; after one miss the sim waits only ``sim.lost_deadline_s``
 per step until the controller answers again. Non-finite, out-of-range, off-grid or stale
 commands are rejected with a diagnostic. The process ends after T_sim (or docking, with
@@ -27,7 +28,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rosgraph_msgs.msg import Clock as ClockMsg
 
 from cikan_ros.constraints import margins
-from cikan_ros.mission import ClosedLoop, nominal_start, sample_start
+from cikan_ros.mission import ClosedLoop, between_violations, nominal_start, sample_start
 from cikan_ros.ros import convert as cv
 from cikan_ros.ros.graph import QOS_STREAM, PeerWatch, Readiness, qos_for, run_node
 from cikan_ros.ros.graph_spec import (ACCEL_CMD, CHIEF_ODOM, CLOCK, DEPUTY_ODOM, DIAGNOSTICS, TRUTH_ACCEL,
@@ -163,13 +164,15 @@ class SimNode(Node):
         u = self.truth.applied_thrust(u)  # through the thrusters: the acceleration as applied
         self.pub_truth_accel.publish(cv.accel_msg(u, self.stamp()))
         m = margins(self.x, self.x_c, u, self.cfg.constraints, self.u_limit, self.cfg.side)
+        path = self.truth.deputy_path(self.k, self.x, u)
+        between = between_violations(self.cfg, path, self.truth.chief_path(self.k))
         level = "ok" if source == "command" else "warn"
         text = "step" if source == "command" else "controller missed its deadline: zero thrust"
         self.pub_diag.publish(cv.diagnostic(NAME, level, text, self.stamp(), {
             "k": self.k, "event": "step", "thrust": source, "u_kmps2": u,
             "h1_normalised": m.h1_normalised[0], "h2_kmps2": m.h2[0], "h3_kmps": m.h3[0],
-            "latency_ms": ms}))
-        self.x = self.truth.step_deputy(self.k, self.x, u)
+            "between_violations": between, "latency_ms": ms}))
+        self.x = path[-1]
         self.k += 1
         pause = self.wall0 + self.k * self.cfg.control.period_s / self.max_rtf - time.perf_counter() \
             if self.max_rtf > 0 else 0.0

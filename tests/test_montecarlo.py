@@ -66,17 +66,19 @@ def test_dask_cluster_gives_the_same_runs(cfg, tmp_path):
 
 def test_summary_figures():
     runs = [
-        {"success": True, "violations": 0, "delta_v_kmps": 1.0, "min_h1_margin": 1e-3, "max_h3": -1e-3,
+        {"success": True, "violations": 0, "violations_between": 2, "delta_v_kmps": 1.0, "min_h1_margin": 1e-3, "max_h3": -1e-3,
          "tau0_s": -7.0, "t_tau_zero_s": 1800.0, "final_distance_m": 1e-8, "updates": 10, "update_ms_mean": 1.0,
          "update_ms_max": 5.0, "active_updates": 2, "active_update_ms_mean": 4.0, "active_update_ms_max": 5.0,
          "initial_ms": 10.0},
-        {"success": False, "violations": 3, "delta_v_kmps": 3.0, "min_h1_margin": -1e-4, "max_h3": None,
+        {"success": False, "violations": 3, "violations_between": 5, "delta_v_kmps": 3.0, "min_h1_margin": -1e-4, "max_h3": None,
          "tau0_s": -9.0, "t_tau_zero_s": None, "final_distance_m": 2.0, "updates": 30, "update_ms_mean": 2.0,
          "update_ms_max": 9.0, "active_updates": 6, "active_update_ms_mean": 8.0, "active_update_ms_max": 9.0,
          "initial_ms": 20.0},
     ]
     s = summarise(runs)
-    assert s["successes"] == 1 and s["violations"] == 3
+    assert s["successes"] == 1 and s["violations"] == 3 and s["violations_between"] == 7
+    # a run stored before the truth was judged between samples: the total is unknown
+    assert summarise([runs[0], {**runs[1], "violations_between": None}])["violations_between"] is None
     assert s["delta_v_kmps_mean"] == 2.0 and s["min_h1_margin"] == -1e-4 and s["max_h3"] == -1e-3
     assert s["update_ms_mean"] == pytest.approx((10 * 1.0 + 30 * 2.0) / 40)  # over all updates
     assert s["active_update_ms_mean"] == pytest.approx((2 * 4.0 + 6 * 8.0) / 8)

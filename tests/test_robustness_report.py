@@ -45,6 +45,7 @@ def test_campaign_table_counts_runs_and_refusals(tmp_path):
         assert row["runs"] == len(runs) == 3
         assert row["refused"] == len(runs) - len(flown)
         assert row["violation_steps"] == sum(m["violations"] for m in flown)
+        assert row["violations_between"] == sum(m["violations_between"] for m in flown)
         assert row["successes"] == sum(m["success"] for m in flown)
         if flown:
             dv = sum(m["delta_v_kmps"] for m in flown) / sum(ref[m["seed"]] for m in flown)

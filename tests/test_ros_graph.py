@@ -57,7 +57,7 @@ def test_lockstep_graph_equals_offline_loop(conventional: tuple[dict, Path]) -> 
     u = np.array([[float(w) for w in steps[k]["u_kmps2"].split()] for k in range(len(stamps) - 1)])
     np.testing.assert_array_equal(u, offline.u[:-1])
     off = offline.metrics()
-    for key in ("success", "violations", "tau0_s", "t_tau_zero_s", "t_docked_s", "updates",
+    for key in ("success", "violations", "violations_between", "tau0_s", "t_tau_zero_s", "t_docked_s", "updates",
                 "active_updates", "verify_calls", "delta_v_kmps"):
         assert metrics[key] == off[key], key
 
@@ -182,7 +182,8 @@ def test_realistic_truth_and_robust_verify_graph_equals_offline(tmp_path, ros_en
     cov = np.array(msgs["/deputy/odom"][len(stamps) // 2][1].pose.covariance).reshape(6, 6)
     assert cov[0, 0] > 0 and cov[0, 0] == cov[1, 1] == cov[2, 2] and cov[3, 3] == 0
     off = offline.metrics()
-    for key in ("success", "violations", "tau0_s", "t_tau_zero_s", "delta_v_kmps", "final_distance_m"):
+    for key in ("success", "violations", "violations_between", "tau0_s", "t_tau_zero_s", "delta_v_kmps",
+                "final_distance_m"):
         assert metrics[key] == off[key], key
     assert metrics["success"] and metrics["violations"] == 0
     h1n, h3 = independent_check(x_d, x_c)

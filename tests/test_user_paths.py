@@ -116,6 +116,7 @@ def test_report_tables_only(campaign: Path, tmp_path: Path) -> None:
         assert int(rows[g]["runs"]) == len(SEEDS)
         assert int(rows[g]["successes"]) == sum(m["success"] for m in runs)
         assert int(rows[g]["violations"]) == sum(m["violations"] for m in runs)
+        assert int(rows[g]["violations_between"]) == sum(m["violations_between"] for m in runs)
         assert float(rows[g]["delta_v_kmps_mean"]) == pytest.approx(dv[g], rel=1e-12)
     assert float(rows["cikan"]["delta_v_vs_conventional"]) == pytest.approx(dv["cikan"] / dv["conventional"] - 1,
                                                                             abs=1e-12)
@@ -132,13 +133,14 @@ def test_report_scenarios_index(campaign: Path, tmp_path: Path) -> None:
     conv, mine = runs_of(campaign, "conventional"), runs_of(campaign, "cikan")
     for g, runs in (("conventional", conv), ("cikan", mine)):
         cells = rows[g].split(" | ")
-        assert cells[3:7] == [str(len(SEEDS)), str(sum(m["success"] for m in runs)),
+        assert cells[3:8] == [str(len(SEEDS)), str(sum(m["success"] for m in runs)),
                               str(sum(m["violations"] for m in runs)),
+                              str(sum(m["violations_between"] for m in runs)),
                               f"{np.mean([m['delta_v_kmps'] for m in runs]):.4f}"], rows[g]
     mean_ratio = np.mean([m["delta_v_kmps"] for m in mine]) / np.mean([m["delta_v_kmps"] for m in conv])
     worst = max(a["delta_v_kmps"] / b["delta_v_kmps"] for a, b in zip(mine, conv))
-    assert rows["cikan"].split(" | ")[7] == f"{mean_ratio - 1:+.1%} ({worst - 1:+.0%})"
-    assert rows["conventional"].split(" | ")[7] == "-"
+    assert rows["cikan"].split(" | ")[8] == f"{mean_ratio - 1:+.1%} ({worst - 1:+.0%})"
+    assert rows["conventional"].split(" | ")[8] == "-"
 
 
 def test_train_like_a_shipped_model(cfg, predictor, tmp_path: Path, capsys) -> None:

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import CikanError
+from ..montecarlo import between_total
 
 #: Row label of a governor's runs over every corner.
 ALL_CORNERS = "all corners"
@@ -28,14 +29,14 @@ def ends_docked(m: dict[str, Any]) -> bool:
 
 def _row(corner: str, governor: str, runs: list[dict[str, Any]]) -> dict[str, Any]:
     flown = [m for m in runs if "refused" not in m]
-    between = [m.get("violations_between") for m in flown]
+    between = between_total(flown)
     return {
         "corner": corner, "governor": governor, "runs": len(runs), "refused": len(runs) - len(flown),
         "violation_steps": sum(int(m["violations"]) for m in flown),
         "runs_violated": sum(1 for m in flown if m["violations"]),
-        # None: runs stored before the truth was judged between samples
-        "violations_between": None if None in between else sum(int(b) for b in between),
-        "runs_violated_between": None if None in between else sum(1 for b in between if b),
+        "violations_between": between,
+        "runs_violated_between": None if between is None else
+        sum(1 for m in flown if m["violations_between"]),
         "docked": sum(1 for m in flown if ends_docked(m)),
         "successes": sum(1 for m in flown if m["success"]),
         "final_distance_m_max": max((m["final_distance_m"] for m in flown), default=math.nan),

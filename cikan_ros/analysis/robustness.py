@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import CikanError
+from ..montecarlo import between_total
 
 
 @dataclass
@@ -103,6 +104,7 @@ def cell_row(c: Cell, ref: dict[int, float]) -> dict[str, Any]:
         "runs": len(c.runs), "refused": len(c.runs) - len(flown),
         "violation_steps": sum(int(m["violations"]) for m in flown),
         "runs_violated": sum(1 for m in flown if m["violations"]),
+        "violations_between": between_total(flown),
         "docked": sum(1 for m in flown if c.docked(m)),
         "successes": sum(1 for m in flown if m["success"]),
         "delta_v_kmps_mean": (sum(m["delta_v_kmps"] for m in flown) / len(flown)) if flown else math.nan,
@@ -120,13 +122,15 @@ def _fmt(v: float, spec: str) -> str:
 def markdown_table(rows: list[dict[str, Any]]) -> str:
     """One row per governor, Verify, controller weight and scale."""
     lines = ["| Verify | controller R | truth.scale | governor | runs | refused | violating steps (runs) "
-             "| docked | success | ΔV mean (km/s) | ΔV / nominal conventional | τ = 0 reached "
-             "| t(τ = 0) mean (s) | docking test |", "|" + "---|" * 14]
+             "| violating between samples | docked | success | ΔV mean (km/s) | ΔV / nominal conventional "
+             "| τ = 0 reached | t(τ = 0) mean (s) | docking test |", "|" + "---|" * 15]
     for r in rows:
         lines.append(
             f"| {r['verify']} | {r['r_weight']:g} | {r['scale']:g} | {r['governor']} | {r['runs']} "
             f"| {r['refused']} "
-            f"| {r['violation_steps']} ({r['runs_violated']}) | {r['docked']} | {r['successes']} "
+            f"| {r['violation_steps']} ({r['runs_violated']}) "
+            f"| {'-' if r['violations_between'] is None else r['violations_between']} "
+            f"| {r['docked']} | {r['successes']} "
             f"| {_fmt(r['delta_v_kmps_mean'], '.3f')} | {_fmt(r['delta_v_ratio'], '.3f')} "
             f"| {r['tau_zero_runs']} | {_fmt(r['t_tau_zero_s_mean'], '.0f')} | {r['dock_test']} |")
     return "\n".join(lines) + "\n"

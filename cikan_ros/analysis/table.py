@@ -47,7 +47,7 @@ COLUMNS = ("model", "rule", "architecture", "trainable_params", "paper_complexit
            "active_speedup_mean", "active_speedup_worst", "delta_v_kmps_mean", "delta_v_vs_conventional",
            "delta_v_vs_conventional_se",
            "t_tau_zero_s_mean", "t_tau_zero_vs_conventional", "successes", "runs", "violations",
-           "nn_accept_rate")
+           "violations_between", "nn_accept_rate")
 
 
 def family_of(model: str) -> str:
@@ -140,7 +140,8 @@ def build_table(mc_dir: str | Path, with_rmse: bool = True) -> list[dict[str, An
         if rule is None and g != "conventional":
             rule = config_from_flat(runs[0][1]).learned.algorithm if runs else None
         row.update(model=g, rule=rule, runs=s["runs"], successes=s["successes"],
-                   violations=s["violations"], t_tau_zero_s_mean=s["t_tau_zero_s_mean"],
+                   violations=s["violations"], violations_between=s.get("violations_between"),
+                   t_tau_zero_s_mean=s["t_tau_zero_s_mean"],
                    delta_v_kmps_mean=s["delta_v_kmps_mean"], update_ms_mean=s["update_cpu_ms_mean"],
                    update_ms_max=s["update_cpu_ms_max"], active_update_ms_mean=s["active_update_cpu_ms_mean"],
                    active_update_ms_max=s["active_update_cpu_ms_max"])
@@ -196,8 +197,8 @@ def to_markdown(rows: list[dict[str, Any]], paper_rows: bool = True) -> str:
     head = ("| model | rule | params (trainable) | complexity n²ℓ(G+3) | L_train, L_val ×1e-3 "
             "| RMSE τ (s) all / active | update ms mean / worst | speed-up mean / worst "
             "| active ms mean / worst | active speed-up mean / worst | ΔV (km/s) | t(τ=0) mean (s) "
-            "| success | violations | NN accept |")
-    lines = [head, "|" + "---|" * 15]
+            "| success | violations | between samples | NN accept |")
+    lines = [head, "|" + "---|" * 16]
 
     def rel(v: Any, se: Any = None) -> str:
         if v is None or not math.isfinite(v):
@@ -218,7 +219,8 @@ def to_markdown(rows: list[dict[str, Any]], paper_rows: bool = True) -> str:
             f"| {_fmt(r['active_speedup_mean'], '.2f')} / {_fmt(r['active_speedup_worst'], '.2f')} "
             f"| {_fmt(r['delta_v_kmps_mean'], '.4f')}{rel(r['delta_v_vs_conventional'], r['delta_v_vs_conventional_se']) if g != 'conventional' else ''} "
             f"| {_fmt(r['t_tau_zero_s_mean'], '.0f')}{rel(r['t_tau_zero_vs_conventional']) if g != 'conventional' else ''} "
-            f"| {r['successes']}/{r['runs']} | {r['violations']} | {_fmt(r['nn_accept_rate'], '.3f')} |")
+            f"| {r['successes']}/{r['runs']} | {r['violations']} | {_fmt(r['violations_between'], 'd')} "
+            f"| {_fmt(r['nn_accept_rate'], '.3f')} |")
         fam = family_of(base)
         last_of_family = i + 1 == len(rows) or family_of(split_rule(rows[i + 1]["model"])[0]) != fam
         if paper_rows and fam in PAPER and last_of_family:
@@ -228,7 +230,7 @@ def to_markdown(rows: list[dict[str, Any]], paper_rows: bool = True) -> str:
                 f"| {_fmt(lt, '.4f')}, {_fmt(lv, '.4f')} | {_fmt(rmse_p, '.4f')} "
                 f"| {tm * 1e3:.1f} / {tw * 1e3:.0f} "
                 f"| {_fmt(PAPER['conventional'][4] / tm, '.2f')} / {_fmt(PAPER['conventional'][5] / tw, '.2f')} "
-                f"| - | - | {dv:.4f} | - | 100/100 | 0 | - |")
+                f"| - | - | {dv:.4f} | - | 100/100 | 0 | - | - |")
     return "\n".join(lines) + "\n"
 
 
@@ -287,9 +289,9 @@ def scenarios_index(root: str | Path) -> str:
     scenario-results``: runs/scenario-results/<scenario>-<side>), each governor's docking,
     violations, ΔV and time to τ = 0 against the conventional TSG of the same campaign (mean
     ratio, and the worst start), and its active-update speed-up (CPU time, as flown)."""
-    lines = ["| scenario | side | governor | runs | docked | violations | ΔV mean (km/s) | ΔV vs conv. "
-             "(worst start) | t(τ=0) vs conv. (worst start) | active speed-up mean / worst | NN accept |",
-             "|" + "---|" * 11]
+    lines = ["| scenario | side | governor | runs | docked | violations | between samples | ΔV mean (km/s) "
+             "| ΔV vs conv. (worst start) | t(τ=0) vs conv. (worst start) | active speed-up mean / worst "
+             "| NN accept |", "|" + "---|" * 12]
     for d in sorted(p for p in Path(root).iterdir() if p.is_dir()):
         scenario, approach = campaign_scenario(d)
         for r in build_table(d, with_rmse=False):
@@ -303,7 +305,7 @@ def scenarios_index(root: str | Path) -> str:
                 tvs = f"{r['t_tau_zero_vs_conventional']:+.1%} ({wt - 1:+.0%})"
             lines.append(
                 f"| {scenario} | {approach} | {g} | {r['runs']} | {r['successes']} | {r['violations']} "
-                f"| {_fmt(r['delta_v_kmps_mean'], '.4f')} | {vs} | {tvs} "
+                f"| {_fmt(r['violations_between'], 'd')} | {_fmt(r['delta_v_kmps_mean'], '.4f')} | {vs} | {tvs} "
                 f"| {_fmt(r['active_speedup_mean'], '.2f')} / {_fmt(r['active_speedup_worst'], '.2f')} "
                 f"| {_fmt(r['nn_accept_rate'], '.3f')} |")
     return "\n".join(lines) + "\n"

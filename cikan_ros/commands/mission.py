@@ -12,6 +12,7 @@ from . import add_config_args, config_from_args, dumps, seed_arg
 SUMMARY_KEYS = (
     ("success", "docked with zero violations", "{}"),
     ("violations", "control steps with a violation", "{}"),
+    ("violations_between", "truth states violating between samples", "{}"),
     ("tau0_s", "first time shift tau_0 [s]", "{:.6f}"),
     ("t_tau_zero_s", "tau reached 0 at [s]", "{}"),
     ("t_docked_s", "docked (<{dock_distance_m:g} m, <{dock_speed_mps:g} m/s) at [s]", "{}"),

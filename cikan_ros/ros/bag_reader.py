@@ -19,7 +19,8 @@ where none came, as the simulator does). The decisions are the shifts at the fir
 every step an update was due, with their ``source`` as the path.
 
 Optional extras, used when recorded: the simulator's /diagnostics step records (the thrust it
-actually applied, exact floats, e.g. zero after a missed deadline), the controller's hold
+actually applied, exact floats, e.g. zero after a missed deadline, and the truth states
+violating h1 or h3 between the samples, which the bag does not hold), the controller's hold
 records (the shift it held when a shift came late), and governor_node's decision records
 (Verify calls and wall time of each decision; without them these are unknown: NaN / None).
 """
@@ -190,6 +191,7 @@ def mission_from_bag(path: str | Path, cfg: Config, governor: str,
     if has_truth:  # the thrust as applied (the simulator's step records below take precedence)
         commands = _first_valid(msgs.get(TRUTH_ACCEL, []), tl, lambda m: accel_from_msg(m, 2.0 * limit))
     applied: dict[int, np.ndarray] = {}
+    between: dict[int, int] = {}
     held: dict[int, float] = {}
     recorded: dict[int, UpdateRecord] = {}
     summary: dict[str, Any] = {}
@@ -198,6 +200,8 @@ def mission_from_bag(path: str | Path, cfg: Config, governor: str,
             v = diagnostic_values(st)
             if st.name == "sim_node" and v.get("event") == "step":
                 applied[int(v["k"])] = floats(v["u_kmps2"])
+                if "between_violations" in v:
+                    between[int(v["k"])] = int(v["between_violations"])
             elif st.name == "sim_node" and v.get("event") == "complete":
                 summary = {k: x if k == "event" else int(x) if k in _COUNTS else float(x)
                            for k, x in v.items()}
@@ -237,9 +241,12 @@ def mission_from_bag(path: str | Path, cfg: Config, governor: str,
     m.h2[-1] = math.nan  # no command is applied at the final instant
     seen = None if not has_truth or cfg.truth.is_nominal else (
         np.array([seen_d[k] for k in range(n)]), np.array([seen_c[k] for k in range(n)]))
+    # between samples: the simulator's count per step (NaN where its step record is missing;
+    # None for a bag recorded before the simulator judged them)
+    judged = np.array([between.get(k, math.nan) for k in range(n - 1)] + [0.0]) if between else None
     result = MissionResult(cfg, governor, t, x_d, x_c, u, tau, m, initial,
                            np.array([t[k] for k, _ in updates]), [r for _, r in updates],
-                           *(seen or (None, None)), limit)
+                           *(seen or (None, None)), limit, judged)
     return result, summary
 
 
