@@ -24,6 +24,7 @@ COMMAND_MODULES = (
     "cikan_ros.commands.bench",
     "cikan_ros.commands.compare",
     "cikan_ros.commands.tube",
+    "cikan_ros.commands.coverage",
     "cikan_ros.commands.dataset",
     "cikan_ros.commands.train",
     "cikan_ros.commands.tune",

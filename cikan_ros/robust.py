@@ -302,7 +302,7 @@ def tube_step(rp: NDArray, u_max: float, ts: float, rng: float, vrel: float, rho
 
 @nb.njit(cache=True)
 def robust_terminal_ok(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, dp: float, dv: float,
-                       big_r: float, big_s: float, linear: bool, ts: float) -> bool:
+                       big_r: float, big_s: float, linear: bool, ts: float) -> tuple[bool, float, float]:
     """The robust terminal test, once the prediction is in the nominal terminal set (dp, dv
     from the virtual target x_v). The prediction does not stop there: the FTRE loop carries it
     on along its transient, by at most P = E_pp dp + E_pv dv in position and V = E_vp dp + E_vv dv
@@ -318,7 +318,7 @@ def robust_terminal_ok(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, dp: f
     big_v = rp[R_EVP] * dp + rp[R_EVV] * dv
     un = rp[R_KP] * big_p + rp[R_KV] * big_v
     if un >= cp[C_UMAX]:
-        return False
+        return False, 0.0, 0.0
     if not linear:  # the saturated phase's transient, as the loop takes it over (tube_step)
         big_r, big_s = loop_takes_over(rp, big_r, big_s)
     # The tube's radii bound the range and the relative speed of every future truth state; the
@@ -341,9 +341,10 @@ def robust_terminal_ok(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, dp: f
         if settled:
             break
     else:
-        return False  # no fixed point: the navigation error grows faster than the ball
-    return (robust_h1_ok(xv, xc, cp, rp[R_SINA], big_p + rho)
-            and robust_h3_ok(xv, xc, cp, big_p + rho, big_v + sig))
+        return False, 0.0, 0.0  # no fixed point: the navigation error grows faster than the ball
+    ok = (robust_h1_ok(xv, xc, cp, rp[R_SINA], big_p + rho)
+          and robust_h3_ok(xv, xc, cp, big_p + rho, big_v + sig))
+    return ok, big_p + rho, big_v + sig
 
 @nb.njit(cache=True)
 def tube_start(rp: NDArray, rng: float) -> tuple[float, float, float, float]:

@@ -94,18 +94,20 @@ def verify_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: ND
     """Verify(x0, t_k, tau) with packed orbit/gains/constraint/prediction/robustness parameters;
     with ``rp[R_ZETA]`` > 0 also at tau - zeta and tau + zeta (the paper's interval, sampled at
     its ends). See :func:`rollout_kernel`."""
-    if not rollout_kernel(orb, table, cp, tp, rp, x0, t_k, tau, chief, chief_t0):
+    none = chief[:0]  # no trace (an empty view: no allocation)
+    if not rollout_kernel(orb, table, cp, tp, rp, x0, t_k, tau, chief, chief_t0, none):
         return False
     zeta = rp[R_ZETA]
     if zeta > 0.0:
-        return (rollout_kernel(orb, table, cp, tp, rp, x0, t_k, tau - zeta, chief, chief_t0)
-                and rollout_kernel(orb, table, cp, tp, rp, x0, t_k, tau + zeta, chief, chief_t0))
+        return (rollout_kernel(orb, table, cp, tp, rp, x0, t_k, tau - zeta, chief, chief_t0, none)
+                and rollout_kernel(orb, table, cp, tp, rp, x0, t_k, tau + zeta, chief, chief_t0, none))
     return True
 
 
 @nb.njit(cache=True)
 def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: NDArray,
-                   x0: NDArray, t_k: float, tau: float, chief: NDArray, chief_t0: float) -> bool:
+                   x0: NDArray, t_k: float, tau: float, chief: NDArray, chief_t0: float,
+                   trace: NDArray) -> bool:
     """One prediction: Verify(x0, t_k, tau) for a single shift.
 
     ``chief`` (>= N_p, 7) caches the chief states x_c(chief_t0 + j T_s) (chief_t0 = t_k up to
@@ -113,6 +115,9 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
     a row whose anomaly is NaN is computed on first use and reused by every later Verify.
     With ``rp[R_ON]`` the constraints and the terminal set are checked on the tube around the
     prediction (module docstring; the tube's kernels are in :mod:`cikan_ros.robust`).
+    ``trace`` (N_p, 9), or an empty array for none, receives under robust Verify each checked
+    sample's predicted deputy, rho, sigma and 0, and at the accepting sample the virtual target,
+    the terminal ball's radii and 1 (what ``cikan coverage`` compares the truth with).
     """
     ts = tp[T_SAMPLE]
     n = int(tp[T_NSAMPLES])
@@ -144,6 +149,11 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
             rng = math.sqrt((x[0] - xc[0]) ** 2 + (x[1] - xc[1]) ** 2 + (x[2] - xc[2]) ** 2)
             if j == 0:  # the measured state
                 rho, sig, big_r, big_s = tube_start(rp, rng)
+            if trace.shape[0] > 0:
+                trace[j, :6] = x
+                trace[j, 6] = rho
+                trace[j, 7] = sig
+                trace[j, 8] = 0.0
             if not tube_ok(x, xc, cp, rp, rho, sig):
                 return False
         else:
@@ -170,8 +180,16 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
             dp2 += (x[i] - xv[i]) ** 2
             dv2 += (x[3 + i] - xv[3 + i]) ** 2
         if dp2 <= tpos2 and dv2 <= tvel2:
-            if not robust or robust_terminal_ok(xv, xc, cp, rp, math.sqrt(dp2), math.sqrt(dv2),
-                                                big_r, big_s, linear, ts):
+            if not robust:
+                return True
+            ok, ball_p, ball_v = robust_terminal_ok(xv, xc, cp, rp, math.sqrt(dp2), math.sqrt(dv2),
+                                                    big_r, big_s, linear, ts)
+            if ok:
+                if trace.shape[0] > 0:
+                    trace[j, :6] = xv
+                    trace[j, 6] = ball_p
+                    trace[j, 7] = ball_v
+                    trace[j, 8] = 1.0
                 return True
         a_n = ftre_control_kernel(table, nu_v, x, xv, u_max, kb, u)  # |u| before saturation
         # h2 holds by saturation up to rounding; checked so a changed control law cannot skip it.
@@ -484,6 +502,18 @@ class Predictor:
         c = self._cache(t, cache)
         return bool(verify_kernel(self.orbit.params, self.gains, self.cparams, self.tparams, self.rparams, x, t,
                                   self._shift(tau, "tau"), c.rows, c.t0))
+
+    def rollout_trace(self, x_d: ArrayLike, t: float, tau: float) -> tuple[bool, NDArray]:
+        """One rollout of Verify(x_d, t, tau) (without the zeta interval) and its trace (N_p, 9)
+        under robust Verify: per checked sample the predicted deputy (km, km/s, ECI), rho (km),
+        sigma (km/s) and 0; at the accepting sample the virtual target, the terminal ball's
+        radii and 1; rows not reached stay NaN (:func:`rollout_kernel`)."""
+        x, t = self._state(x_d, t)
+        c = self.cache(t)
+        trace = np.full((self.n_samples, 9), math.nan)
+        ok = rollout_kernel(self.orbit.params, self.gains, self.cparams, self.tparams, self.rparams, x, t,
+                            self._shift(tau, "tau"), c.rows, c.t0, trace)
+        return bool(ok), trace
 
     def bisect(self, x_d: ArrayLike, t: float, lo: float, hi: float,
                cache: ChiefCache | None = None, budget: int | None = None) -> tuple[float, int]:

@@ -160,7 +160,7 @@ def test_robust_terminal_set_holds_the_loop_it_lets_go(nu, behind_m, dp_m, dv_fr
     # Only states it accepts are checked: assume() makes Hypothesis draw others instead (about
     # half are accepted) and fail the test, not pass it, when it finds too few to check.
     assume(robust_terminal_ok(x_v, x_c, pred.cparams, pred.rparams, dp_m * 1e-3, dv_frac ** 2 * 1e-4,
-                              0.0, 0.0, True, cfg.tsg.sample_period_s))
+                              0.0, 0.0, True, cfg.tsg.sample_period_s)[0])
     phi, _, _ = loop_at(nu, np.eye(3), cfg)
     cp = pred.cparams
     for _ in range(2000):
