@@ -22,6 +22,7 @@ from .errors import CikanError, NoFeasibleShiftError
 from .governor import Governor, warm_up
 from .mission import MissionResult, nominal_start, run_mission, sample_start
 from .parallel import ordered_map
+from .progress import Bar
 from .registry import GOVERNOR_NAMES, make_governor
 from .robust import UnstableLoopError
 
@@ -125,21 +126,20 @@ def save_refused(task: RunTask, reason: str, json_path: Path) -> dict[str, Any]:
 
 
 def run_campaign(cfg: Config, governors: list[str], runs: int, seed: int, out_dir: str | Path,
-                 workers: int = 1, dask_address: str | None = None, progress: bool = True
+                 workers: int = 1, dask_address: str | None = None, progress: bool = False
                  ) -> dict[str, list[dict[str, Any]]]:
-    """All runs of all governors: {governor label: [metrics of run 0 .. runs-1]}."""
-    from tqdm import tqdm
-
+    """All runs of all governors: {governor label: [metrics of run 0 .. runs-1]}; ``progress``:
+    show a progress bar (:mod:`cikan_ros.progress`)."""
     if runs < 1:
         raise CikanError(f"--runs must be >= 1, got {runs}")
     cfg_json = json.dumps(cfg.flat(), sort_keys=True)
     tasks = [RunTask(cfg_json, g, seed + i, str(out_dir)) for g in governors for i in range(runs)]
     out: dict[str, list[dict[str, Any]]] = {governor_label(g): [] for g in governors}
     results: Iterator[dict[str, Any]] = ordered_map(run_one, tasks, workers, dask_address)
-    with tqdm(total=len(tasks), unit="run", desc="cikan montecarlo", disable=not progress) as bar:
+    with Bar(len(tasks), "cikan montecarlo", "runs", progress) as bar:
         for task, metrics in zip(tasks, results):
             out[governor_label(task.governor)].append(metrics)
-            bar.update()
+            bar.advance()
     return out
 
 

@@ -87,8 +87,11 @@ def run(args: argparse.Namespace) -> int:
     if args.governor_exec is not None and (args.offline or args.governor is not None):
         raise ConfigError("--governor-exec replaces governor_node in the ROS graph: it takes "
                           "neither --offline nor --governor")
+    from ..progress import on_terminal
+
     args.governor = args.governor or "conventional"
     cfg = config_from_args(args)
+    progress = on_terminal(args.json)
     if args.offline:
         from ..governor import warm_up
         from ..mission import nominal_start, run_mission, sample_start
@@ -101,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
         # first update 1,779 ms). The mission flies the same either way.
         warm_up(governor, nominal_start(pred), pred.orbit.state(0.0))
         x0 = nominal_start(pred) if args.seed is None else sample_start(pred, args.seed)
-        result = run_mission(governor, x0, args.seed)
+        result = run_mission(governor, x0, args.seed, progress=progress)
         metrics = result.metrics()
         if governor.name != "conventional":  # fraction of consulted proposals that passed Verify
             from ..learn.governor import nn_accept_rate
@@ -119,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
 
         metrics = run_ros_mission(cfg, governor=args.governor, seed=args.seed, bag=args.bag,
                                   config_path=args.config, overrides=args.overrides,
-                                  governor_exec=args.governor_exec)
+                                  governor_exec=args.governor_exec, progress=progress)
         metrics.update(seed=args.seed, mode="ros")
     if args.json:
         print(dumps(metrics))

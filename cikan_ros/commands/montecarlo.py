@@ -31,11 +31,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..registry import campaign_names, shipped_names
     from ..montecarlo import markdown_summary, run_campaign, summarise
+    from ..progress import on_terminal
 
     cfg = config_from_args(args)
     governors = (campaign_names() if args.governor == "all" else shipped_names(cfg)
                  if args.governor == "shipped" else args.governor.split(","))
-    results = run_campaign(cfg, governors, args.runs, args.seed, args.out, args.workers, args.dask)
+    results = run_campaign(cfg, governors, args.runs, args.seed, args.out, args.workers, args.dask,
+                           progress=on_terminal(args.json))
     summaries = {g: summarise(runs) for g, runs in results.items()}
     out = Path(args.out)
     (out / "summary.json").write_text(json.dumps(summaries, indent=1))
