@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
-from . import add_config_args, config_from_args, dumps, seed_arg
+from ..strict_json import dumps
+from . import add_config_args, config_from_args, seed_arg
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -31,6 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..registry import campaign_names, shipped_names
     from ..montecarlo import markdown_summary, run_campaign, summarise
+    from ..analysis.flown import flown_markdown, flown_rows, governors_text
     from ..progress import on_terminal
 
     cfg = config_from_args(args)
@@ -40,11 +41,12 @@ def run(args: argparse.Namespace) -> int:
                            progress=on_terminal(args.json))
     summaries = {g: summarise(runs) for g, runs in results.items()}
     out = Path(args.out)
-    (out / "summary.json").write_text(json.dumps(summaries, indent=1))
-    (out / "summary.md").write_text(markdown_summary(summaries))
+    (out / "summary.json").write_text(dumps(summaries, indent=1))
+    flown = flown_markdown(flown_rows(cfg, governors_text(governors, cfg)))
+    (out / "summary.md").write_text(f"{flown}\n{markdown_summary(summaries)}")
     if args.json:
         print(dumps(summaries))
     else:
-        print(markdown_summary(summaries), end="")
+        print(f"{flown}\n{markdown_summary(summaries)}", end="")
         print(f"per-run results and summary in {out}/")
     return 0

@@ -12,7 +12,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from . import add_config_args, config_from_args, dumps, int_at_least, seed_arg
+from ..strict_json import dumps
+from . import add_config_args, config_from_args, int_at_least, seed_arg
 
 
 def register(sub: argparse._SubParsersAction) -> None:

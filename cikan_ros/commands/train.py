@@ -6,7 +6,8 @@ import argparse
 from typing import Any
 
 from ..learn.features import FEATURE_SETS
-from . import add_config_args, config_from_args, dumps, seed_arg
+from ..strict_json import dumps
+from . import add_config_args, config_from_args, seed_arg
 
 FAMILY_HELP = "cikan (B-spline KAN), grbf, rswaf, relu (MLP), gelu (MLP)"
 
