@@ -13,6 +13,10 @@ from pathlib import Path
 
 import pytest
 
+from ros_helpers import ros_env
+
+__all__ = ["ros_env"]
+
 #: A short mission (60 steps): the command's behaviour, not the mission's result, is under test.
 SHORT = ["--set", "mission.duration_s=600"]
 #: What rich draws: the bar's line glyph and the cursor hiding of a live display.
@@ -68,6 +72,16 @@ def test_json_on_a_terminal_is_only_json(command, tmp_path):
 def test_montecarlo_on_a_terminal_shows_a_bar(tmp_path):
     text = on_pty(cikan_cmd("montecarlo", "--runs", "2", "--out", str(tmp_path / "mc"), *SHORT))
     assert all(b in text for b in BAR_BYTES) and "2/2" in text and "runs" in text
+
+
+def test_ros_mission_on_a_terminal_shows_the_recorded_steps(ros_env: int, tmp_path: Path):
+    """Through the ROS graph the bar counts the steps in the bag, up to all K of them; the bag's
+    path is printed whole, on its own line."""
+    bag = tmp_path / ("a_bag_directory_with_a_name_longer_than_a_table_cell_" * 3)
+    text = on_pty(cikan_cmd("mission", "--bag", str(bag), "--set", "mission.duration_s=100"))
+    assert all(b in text for b in BAR_BYTES)
+    assert "cikan mission (ROS graph)" in text and "10/10" in text
+    assert f"bag: {bag}\r\n" in text
 
 
 def test_launcher_reads_the_steps_the_recorder_flushed(tmp_path: Path):

@@ -26,7 +26,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "(default: the nominal start)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     p.add_argument("--bag", metavar="DIR", default=None,
-                   help="ROS run: record to this bag directory (default: bags/<time>_<governor>)")
+                   help="ROS run: record to this bag directory (default: runs/bags/<time>_<governor>); "
+                        "not with --offline")
     add_config_args(p)
     p.set_defaults(func=run)
 
@@ -61,6 +62,10 @@ def run(args: argparse.Namespace) -> int:
     if args.governor_exec is not None and (args.offline or args.governor is not None):
         raise ConfigError("--governor-exec replaces governor_node in the ROS graph: it takes "
                           "neither --offline nor --governor")
+    if args.offline and args.bag is not None:
+        raise ConfigError("--bag records the ROS graph's topics; an offline mission has none to record "
+                          "(drop --offline to record it, or keep an offline run's whole record with "
+                          "`cikan montecarlo --runs 1 --seed N --out DIR`, which `cikan report` reads)")
     from ..progress import on_terminal
 
     args.governor = args.governor or "conventional"

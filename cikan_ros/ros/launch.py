@@ -317,7 +317,8 @@ def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | Non
         elif failure is None:   # success, or interrupted (the bag is closed, the logs go)
             shutil.rmtree(workdir, ignore_errors=True)
     if failure is not None:
-        kept = "removed the empty bag" if discard_empty_bag(bag_path) else f"bag kept in {bag_path}"
+        kept = ("no bag was written" if not bag_path.exists() else
+                "removed the empty bag" if discard_empty_bag(bag_path) else f"bag kept in {bag_path}")
         raise (CikanError if bad_input else MissionError)(f"{failure} ({kept}; node logs in {workdir})")
     wall = time.perf_counter() - wall0
     rc = graph.procs["recorder"].returncode
