@@ -1,7 +1,7 @@
 """Progress bars of the long commands (``cikan mission``, ``montecarlo``, ``dataset``, ``train``,
-``soak``, ``replay``): one rich bar on stderr, shown only when stdout and stderr are both a
-terminal and the command was not asked for ``--json`` (or ``--quiet``). Piped, redirected or
-machine-read output gets no byte of it.
+``soak``, ``replay``): one rich bar on stderr, shown only when stderr is a terminal and the
+command was not asked for ``--json`` (or ``--quiet``). Piped or redirected output gets no byte of
+it: stdout never carries it, and stderr only when a person watches it.
 
 A hidden bar costs nothing: :class:`Bar` then does no work at all.
 """
@@ -14,15 +14,16 @@ from typing import Any
 
 
 def on_terminal(quiet: bool = False) -> bool:
-    """Whether a command shows its progress bar: not ``quiet`` (``--json``, ``--quiet``) and both
-    stdout and stderr are a terminal (a person watches; nothing reads the output)."""
-    return not quiet and sys.stdout.isatty() and sys.stderr.isatty()
+    """Whether a command shows its progress bar: not ``quiet`` (``--json``, ``--quiet``) and
+    stderr, where the bar goes, is a terminal."""
+    return not quiet and sys.stderr.isatty()
 
 
 class Bar:
     """A progress bar over ``total`` items of ``unit`` (``None``: unknown total), a context
     manager; ``show`` False (see :func:`on_terminal`): nothing is drawn. Lines printed to stdout
-    while it runs appear above it."""
+    while it runs appear above it when stdout is the same terminal (else they go where stdout
+    goes, untouched)."""
 
     def __init__(self, total: float | None, description: str, unit: str, show: bool,
                  completed: float = 0.0) -> None:
@@ -42,7 +43,7 @@ class Bar:
                 TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
                 TextColumn(self.unit), TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn(),
                 TextColumn("{task.fields[note]}"),
-                console=Console(file=sys.stderr), redirect_stdout=True, redirect_stderr=False,
+                console=Console(file=sys.stderr), redirect_stdout=sys.stdout.isatty(), redirect_stderr=False,
                 refresh_per_second=4)
             self._progress.start()
             self._task = self._progress.add_task(self.description, total=self.total,

@@ -27,11 +27,12 @@ def cikan_cmd(*args: str) -> list[str]:
     return [sys.executable, "-m", "cikan_ros.cli", *args]
 
 
-def on_pty(argv: list[str]) -> str:
-    """What a command writes to a terminal (stdout and stderr on one pseudo-terminal)."""
+def on_pty(argv: list[str], stdout: int | None = None) -> str:
+    """What a command writes to a terminal (stdout, unless ``stdout`` says where it goes, and
+    stderr on one pseudo-terminal)."""
     master, slave = pty.openpty()
-    proc = subprocess.Popen(argv, stdin=slave, stdout=slave, stderr=slave, close_fds=True,
-                            env={**os.environ, "COLUMNS": "160"})
+    proc = subprocess.Popen(argv, stdin=slave, stdout=slave if stdout is None else stdout, stderr=slave,
+                            close_fds=True, env={**os.environ, "COLUMNS": "160"})
     os.close(slave)
     out = bytearray()
     while True:
@@ -53,11 +54,17 @@ def test_mission_on_a_terminal_shows_a_bar():
     assert "cikan mission" in text and "60/60" in text and "steps" in text
 
 
-def test_piped_mission_writes_no_bar():
+def test_piped_mission_writes_no_bar(tmp_path):
     out = subprocess.run(cikan_cmd("mission", "--offline", *SHORT), capture_output=True, text=True, timeout=120)
     assert out.returncode in (0, 1), out.stderr
     assert not any(b in out.stdout + out.stderr for b in BAR_BYTES)
     assert "final distance" in out.stdout
+    # stdout to a file, stderr on a terminal: the bar on the terminal, not a byte of it in the file
+    with open(tmp_path / "out.txt", "wb") as f:
+        text = on_pty(cikan_cmd("mission", "--offline", *SHORT), stdout=f.fileno())
+    written = (tmp_path / "out.txt").read_text()
+    assert all(b in text for b in BAR_BYTES) and "final distance" not in text
+    assert "final distance" in written and not any(b in written for b in BAR_BYTES)
 
 
 @pytest.mark.parametrize("command", [["mission", "--offline", *SHORT],
