@@ -9,6 +9,7 @@ from typing import Any
 from ..strict_json import dumps
 from . import add_config_args, config_from_args, seed_arg
 
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("mission", help="run one rendezvous (offline or as the ROS graph)",
                        description="Run one rendezvous mission and print its metrics.")

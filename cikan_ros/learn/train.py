@@ -258,7 +258,7 @@ def train(arch: Arch, data: Data, cfg: TrainConfig, out: str | Path | None,
             st["wall_s"] = time.perf_counter() - t0
             if ckpt is not None:
                 _save_checkpoint(ckpt, net, opt, best, st)
-            bar.advance(1, note=f"train {total / count:.3e} val {val:.3e} best {st['best_val']:.3e}")
+            bar.advance(1, note=f"val {val:.2e}, best {st['best_val']:.2e}")
             if on_epoch is not None:
                 on_epoch(ep + 1, val1)
             if st["bad_epochs"] >= cfg.patience:
