@@ -22,6 +22,7 @@ from .control import ftre_control
 from .errors import NoFeasibleShiftError, StateError
 from .governor import Governor, UpdateRecord, is_active
 from .orbit import check_states
+from .progress import Bar
 from .truth import Truth
 from .tsg import ChiefAnchor, Predictor
 from .units import ns_to_seconds, seconds_to_ns, through_si
@@ -360,12 +361,13 @@ def audit_shifts(predictor: Predictor, x_d: NDArray, tau: NDArray, x_c: NDArray 
 
 
 def run_mission(governor: Governor, x_d0: NDArray, seed: int | None = None,
-                truth: Truth | None = None) -> MissionResult:
+                truth: Truth | None = None, progress: bool = False) -> MissionResult:
     """Closed loop from the true deputy state x_d0 at t = 0 for T_sim: the :class:`ClosedLoop`
     step on the states the :class:`Truth` of ``seed`` measures, the truth stepped under the
     applied thrust (ZOH). The governor and the controller see what crosses the ROS boundary (SI
     and back), as the nodes do; violations, docking and Delta-V are judged on the truth. A
     ``truth`` given (e.g. pinned to a corner) is flown instead of the seed's draw.
+    ``progress``: show a progress bar over the steps (:mod:`cikan_ros.progress`).
     """
     pred = governor.predictor
     cfg = pred.config
@@ -388,24 +390,26 @@ def run_mission(governor: Governor, x_d0: NDArray, seed: int | None = None,
     update_t: list[float] = []
     first: UpdateRecord | None = None
     tau: float | None = None
-    for k in range(n_steps):
-        seen_d[k] = truth.measure_deputy(k, x)[0]
-        seen_c[k] = truth.measure_chief(k)
-        x_seen, xc_seen = through_si(seen_d[k]), through_si(seen_c[k])
-        rec = loop.decide(governor, k, x_seen, xc_seen, tau)
-        if rec is not None:
-            if first is None:
-                first = rec
-            else:
-                updates.append(rec)
-                update_t.append(float(t[k]))
-            tau = rec.tau_s
-        x_d[k] = x
-        taus[k] = tau
-        u[k] = truth.applied_thrust(through_si(loop.command(k, tau, x_seen, xc_seen)))
-        path = truth.deputy_path(k, x, u[k])
-        between[k] = between_violations(cfg, path, truth.chief_path(k))
-        x = path[-1]
+    with Bar(n_steps, "cikan mission", "steps", progress) as bar:
+        for k in range(n_steps):
+            seen_d[k] = truth.measure_deputy(k, x)[0]
+            seen_c[k] = truth.measure_chief(k)
+            x_seen, xc_seen = through_si(seen_d[k]), through_si(seen_c[k])
+            rec = loop.decide(governor, k, x_seen, xc_seen, tau)
+            if rec is not None:
+                if first is None:
+                    first = rec
+                else:
+                    updates.append(rec)
+                    update_t.append(float(t[k]))
+                tau = rec.tau_s
+            x_d[k] = x
+            taus[k] = tau
+            u[k] = truth.applied_thrust(through_si(loop.command(k, tau, x_seen, xc_seen)))
+            path = truth.deputy_path(k, x, u[k])
+            between[k] = between_violations(cfg, path, truth.chief_path(k))
+            x = path[-1]
+            bar.advance()
     x_d[-1] = x
     taus[-1] = tau
     seen_d[-1] = truth.measure_deputy(n_steps, x)[0]

@@ -24,8 +24,10 @@ import numpy as np
 from .config import Config, config_from_flat, corners
 from .errors import CikanError, NoFeasibleShiftError
 from .governor import Governor, warm_up
+from .learn.governor import nn_accept_rate
 from .mission import MissionResult, nominal_start, run_mission, sample_start
 from .parallel import ordered_map
+from .progress import Bar
 from .registry import GOVERNOR_NAMES, make_governor
 from .robust import UnstableLoopError
 from .truth import Truth
@@ -60,9 +62,12 @@ def run_paths(out_dir: str | Path, governor: str, seed: int) -> tuple[Path, Path
 
 
 def save_run(res: MissionResult, seed: int, json_path: Path, npz_path: Path) -> dict[str, Any]:
-    """Write a run's metrics (JSON) and arrays (npz); return the metrics."""
+    """Write a run's metrics (JSON) and arrays (npz); return the metrics (with ``nn_accept_rate``
+    where a learned governor flew, as ``cikan mission`` reports it)."""
     metrics = res.metrics()
     metrics["seed"] = seed
+    if res.governor != "conventional":
+        metrics["nn_accept_rate"] = nn_accept_rate(res.updates)
     json_path.parent.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(
         npz_path, t=res.t, x_d=res.x_d, x_c=res.x_c, u=res.u, tau=res.tau,
@@ -150,12 +155,11 @@ def campaign_variants(cfg: Config, out_dir: str | Path, at_corners: bool = False
 
 
 def run_campaign(cfg: Config, governors: list[str], runs: int, seed: int, out_dir: str | Path,
-                 workers: int = 1, dask_address: str | None = None, progress: bool = True,
+                 workers: int = 1, dask_address: str | None = None, progress: bool = False,
                  at_corners: bool = False) -> dict[str, list[dict[str, Any]]]:
     """All runs of all governors: {governor label: [metrics of run 0 .. runs-1]}; with
-    ``at_corners``, of every corner in turn (each run's metrics name its ``corner``)."""
-    from tqdm import tqdm
-
+    ``at_corners``, of every corner in turn (each run's metrics name its ``corner``);
+    ``progress``: show a progress bar (:mod:`cikan_ros.progress`)."""
     if runs < 1:
         raise CikanError(f"--runs must be >= 1, got {runs}")
     tasks = [RunTask(json.dumps(c.flat(), sort_keys=True), g, seed + i, str(d))
@@ -163,10 +167,10 @@ def run_campaign(cfg: Config, governors: list[str], runs: int, seed: int, out_di
              for g in governors for i in range(runs)]
     out: dict[str, list[dict[str, Any]]] = {governor_label(g): [] for g in governors}
     results: Iterator[dict[str, Any]] = ordered_map(run_one, tasks, workers, dask_address)
-    with tqdm(total=len(tasks), unit="run", desc="cikan montecarlo", disable=not progress) as bar:
+    with Bar(len(tasks), "cikan montecarlo", "runs", progress) as bar:
         for task, metrics in zip(tasks, results):
             out[governor_label(task.governor)].append(metrics)
-            bar.update()
+            bar.advance()
     return out
 
 
@@ -211,6 +215,7 @@ def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
         "delta_v_kmps_max": float(dv.max()),
         "min_h1_margin": float(col("min_h1_margin").min()),
         "max_h3": float(col("max_h3").max()) if col("max_h3").size else math.nan,
+        "nn_accept_rate_mean": float(col("nn_accept_rate").mean()) if col("nn_accept_rate").size else math.nan,
         "tau0_s_mean": float(col("tau0_s").mean()),
         "t_tau_zero_s_mean": float(col("t_tau_zero_s").mean()) if col("t_tau_zero_s").size else math.nan,
         "t_tau_zero_s_max": float(col("t_tau_zero_s").max()) if col("t_tau_zero_s").size else math.nan,
@@ -230,19 +235,25 @@ def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def markdown_summary(summaries: dict[str, dict[str, Any]]) -> str:
-    """A Markdown table of campaign figures, one row per governor."""
+    """A Markdown table of campaign figures, one row per governor (h3 in m/s; NN accept: the
+    mean over runs of ``nn_accept_rate``, where a learned governor flew)."""
     head = ("| governor | runs | success | violations | between samples | ΔV mean (km/s) | ΔV max "
-            "| min h1 margin | max h3 (km/s) | update ms mean / max | active ms mean / max |")
-    lines = [head, "|" + "---|" * 11]
+            "| min h1 margin | max h3 (m/s) | NN accept | update ms mean / max | active ms mean / max |")
+    lines = [head, "|" + "---|" * 12]
+
+    def num(v: float | None, fmt: str, scale: float = 1.0) -> str:
+        return "-" if v is None or not math.isfinite(v) else format(v * scale, fmt)
+
     for g, s in summaries.items():
         if not s["runs"]:
-            lines.append(f"| {g} | 0 ({s['refused']} refused) | 0 | 0 | 0 | - | - | - | - | - | - |")
+            lines.append(f"| {g} | 0 ({s['refused']} refused) | 0 | 0 | 0 | - | - | - | - | - | - | - |")
             continue
         between = "-" if s["violations_between"] is None else s["violations_between"]
         lines.append(
             f"| {g} | {s['runs']}{f' ({r} refused)' if (r := s['refused']) else ''} | {s['successes']} "
             f"| {s['violations']} | {between} | {s['delta_v_kmps_mean']:.4f} "
-            f"| {s['delta_v_kmps_max']:.4f} | {s['min_h1_margin']:.2e} | {s['max_h3']:.2e} "
+            f"| {s['delta_v_kmps_max']:.4f} | {s['min_h1_margin']:.2e} | {num(s['max_h3'], '.2e', 1e3)} "
+            f"| {num(s.get('nn_accept_rate_mean'), '.3f')} "
             f"| {s['update_ms_mean']:.3f} / {s['update_ms_max']:.2f} "
             f"| {s['active_update_ms_mean']:.3f} / {s['active_update_ms_max']:.2f} |")
     return "\n".join(lines) + "\n"

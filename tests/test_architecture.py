@@ -21,7 +21,8 @@ PACKAGES = ("cikan_ros", "sim_node", "governor_node", "controller_node")
 #: layers and of its own group: never of a higher layer, nor of another group of its layer.
 LAYERS: list[dict[str, list[str]]] = [
     {"base": ["cikan_ros", "cikan_ros.errors", "cikan_ros.paths", "cikan_ros.units", "cikan_ros.config",
-              "cikan_ros.parallel", "cikan_ros.paired"]},
+              "cikan_ros.parallel", "cikan_ros.paired", "cikan_ros.progress",
+              "cikan_ros.strict_json"]},
     {"physics": ["cikan_ros.orbit", "cikan_ros.dynamics", "cikan_ros.control", "cikan_ros.constraints",
                  "cikan_ros.truth"]},
     {"verify": ["cikan_ros.tsg", "cikan_ros.robust"]},
@@ -30,7 +31,7 @@ LAYERS: list[dict[str, list[str]]] = [
     {"learned flight": ["cikan_ros.learn", "cikan_ros.learn.errors", "cikan_ros.learn.features",
                         "cikan_ros.learn.arch", "cikan_ros.learn.modelfile", "cikan_ros.learn.governor"]},
     {"registry": ["cikan_ros.registry"]},
-    {"campaigns": ["cikan_ros.montecarlo", "cikan_ros.compare"]},
+    {"campaigns": ["cikan_ros.montecarlo", "cikan_ros.compare", "cikan_ros.coverage"]},
     {"learning pipeline": ["cikan_ros.learn.models", "cikan_ros.learn.loss", "cikan_ros.learn.schedule",
                            "cikan_ros.learn.dataset", "cikan_ros.learn.train", "cikan_ros.learn.tune",
                            "cikan_ros.learn.cards", "cikan_ros.learn.bench"],

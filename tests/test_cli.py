@@ -157,3 +157,10 @@ def check_one_line(argv: list[str]) -> None:
                 return
             assert exc.code == 2, (argv, exc.code)
             assert err.getvalue().count("\n") == 1 and "error:" in err.getvalue(), err.getvalue()
+
+
+def test_offline_mission_refuses_a_bag(tmp_path):
+    """An offline mission has no topics to record: --bag is refused with one line, nothing written."""
+    out = cikan("mission", "--offline", "--bag", str(tmp_path / "bag"))
+    assert out.returncode == 2 and out.stderr.count("\n") == 1 and "--bag" in out.stderr
+    assert not (tmp_path / "bag").exists() and "Traceback" not in out.stderr

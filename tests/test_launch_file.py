@@ -8,6 +8,7 @@ launch, launch_ros, launch_yaml and ros2launch are not published as ros-jazzy-* 
 from __future__ import annotations
 
 import re
+import subprocess
 import tomllib
 from datetime import datetime
 from pathlib import Path
@@ -88,11 +89,14 @@ def test_launch_file_defaults_are_the_launchers() -> None:
     assert params["governor.name"] == graph_spec.ARGUMENTS["governor"] == "conventional"
     assert params["sim.seed"] == graph_spec.ARGUMENTS["seed"] == -1
     assert params["recorder.bag"] == graph_spec.ARGUMENTS["bag"].format(utc="{utc}", governor="conventional")
-    # the launcher's default bag: bags/<UTC time in graph_spec.UTC_FORMAT>_<governor>
+    # the launcher's default bag: runs/bags/<UTC time in graph_spec.UTC_FORMAT>_<governor>, where
+    # git ignores it (bags/ holds the committed reference bags)
     default = launch.default_bag_path("conventional")
     prefix, utc, rest = default.parent.as_posix(), *default.name.split("_", 1)
     datetime.strptime(utc, graph_spec.UTC_FORMAT)
     assert f"{prefix}/{{utc}}_{rest}" == params["recorder.bag"]
+    if (ROOT / ".git").exists():   # a checkout: git ignores what a mission records by default
+        assert subprocess.run(["git", "-C", str(ROOT), "check-ignore", "-q", default.as_posix()]).returncode == 0
 
 
 def test_graph_spec_is_what_the_launcher_starts(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -61,7 +61,7 @@ def drawn(monkeypatch) -> dict[str, Drawn]:
 
     def capture(fig, path):
         out[Path(path).stem] = Drawn([{
-            "xlabel": ax.get_xlabel(), "ylabel": ax.get_ylabel(),
+            "xlabel": ax.get_xlabel(), "ylabel": ax.get_ylabel(), "title": ax.get_title(), "xlim": ax.get_xlim(),
             "lines": [(np.asarray(ln.get_xdata(), dtype=float), np.asarray(ln.get_ydata(), dtype=float),
                        to_hex(ln.get_color())) for ln in ax.get_lines()]} for ax in fig.axes])
         return save(fig, path)
@@ -230,7 +230,7 @@ def test_report_from_the_committed_bag(tmp_path, drawn):
     run = {"t": b["t"], "x_d": b["x_d"] * 1e-3, "x_c": b["x_c"] * 1e-3, "tau": tau,
            "h1_normalised": drawn["fig4_constraints"].lines(0, n)[0][1]}
     _assert_histories(drawn, [run], ["#000000"])
-    assert "| success | True |" in page.read_text()
+    assert "| docked with zero violations | True |" in page.read_text()
 
 
 def _bag_record(bag: Path) -> dict[str, np.ndarray]:
@@ -310,7 +310,7 @@ def test_report_on_a_bag_does_not_import_rclpy(tmp_path):
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, run.stderr
     assert "rclpy loaded: False" in run.stdout
-    assert "| success | True |" in (tmp_path / "report.md").read_text()
+    assert "| docked with zero violations | True |" in (tmp_path / "report.md").read_text()
 
 
 def test_bag_decisions_agree_with_the_in_process_governor(predictor):
@@ -384,3 +384,128 @@ def test_metrics_from_the_typed_topics_alone(tmp_path, cfg):
             assert metrics[key] == value, key
     assert "ros" not in metrics and "ros" in full               # the simulator's summary is an extra
     assert (metrics["unverified_shifts"], metrics["off_schedule_shifts"], metrics["missing_shifts"]) == (0, 0, 0)
+
+
+NARROW_AHEAD = """\
+/**:
+  ros__parameters:
+    scenario:
+      name: "narrow"
+      description: "the paper's orbit, a 15-degree cone, from ahead"
+    constraints:
+      los_half_angle_deg: 15.0
+    mission:
+      approach: "ahead"
+      duration_s: 3600.0
+"""
+
+
+def test_figures_draw_the_cone_and_side_the_run_flew(tmp_path, drawn):
+    """A custom scenario (a file) with a 15-degree cone, from ahead: Fig. 3a's cone edges leave the
+    chief along +V (the port faces the approach) with slope tan 15 deg, the axes hold the whole
+    approach on the +V side, and report.md names the scenario and the side."""
+    from cikan_ros.config import load_config, scenario_overrides
+
+    scenario = tmp_path / "narrow.yaml"
+    scenario.write_text(NARROW_AHEAD)
+    cfg = load_config(**scenario_overrides(str(scenario)))
+    run_campaign(cfg, ["conventional"], runs=1, seed=1, out_dir=tmp_path / "mc")
+    page = write_report(tmp_path / "mc", tmp_path / "rep")
+    orange = "#ff7f0e"
+    x_d = np.load(next((tmp_path / "mc" / "conventional").glob("seed_*.npz")))["x_d"]
+    for name in ("fig3a_relative_vnb", "fig3a_relative_vnb_zoom"):
+        for ax in drawn[name].axes[:2]:
+            edges = [(x, y) for x, y, c in ax["lines"] if c == orange and len(x) == 2]
+            assert len(edges) == 2, name
+            for x, y in edges:
+                assert x[0] == 0.0 and y[0] == 0.0 and x[1] > 0.0                   # from the chief along +V
+                assert abs(y[1] / x[1]) == pytest.approx(math.tan(math.radians(15.0)), rel=1e-12)
+            assert {np.sign(y[1]) for _, y in edges} == {-1.0, 1.0}
+            lo, hi = ax["xlim"]
+            assert lo < 0.0 < hi and hi > -lo          # the axes open on the +V side
+    assert "15°" in drawn["fig4_constraints"].axes[0]["title"]
+    # the whole approach is inside the axes: V of the start (km) below the right limit
+    start_v = drawn["fig3a_relative_vnb"].lines(0, len(x_d))[0][0][0]
+    assert 0.0 < start_v < drawn["fig3a_relative_vnb"].axes[0]["xlim"][1]
+    text = page.read_text()
+    assert "scenario: narrow" in text and "from ahead (τ >= 0, cone 15° around +v_c)" in text
+
+
+def test_h2_is_drawn_against_the_limit_it_is_judged_by(cfg, tmp_path, drawn):
+    """Under a truth with a thruster bias bound b, h2 = |u| - u_max (1 + b): Fig. 4 names that
+    limit and scales its axis to it."""
+    from cikan_ros.analysis.figures import RunData, constraint_histories
+    from cikan_ros.config import truth_overrides
+
+    real = cfg.replace(**truth_overrides("realistic"))
+    limit_mps2 = 1e3 * real.control.u_max_kmps2 * (1.0 + real.truth.scale * real.truth.thrust_bias_max)
+    n = 5
+    x_c = np.tile([7000.0, 0.0, 0.0, 0.0, 7.5, 0.0], (n, 1))
+    run = RunData("conventional", np.arange(n) * 10.0, x_c + [0, -1, 0, 0, 0, 0], x_c, np.zeros((n, 3)),
+                  np.zeros(n), np.full(n, -0.5), np.full(n, -limit_mps2 / 1e3), np.full(n, np.nan), real)
+    constraint_histories([run], tmp_path / "fig4.png")
+    ax = drawn["fig4"].axes[1]
+    assert ax["ylabel"] == "h2 = |u| - u_lim (m/s²)"
+    assert f"u_lim = {limit_mps2:.6g} m/s²" in ax["title"] and limit_mps2 == pytest.approx(0.51)
+
+
+def test_metrics_json_is_strict_json(campaign, tmp_path):
+    """A value a run could not compute (NaN in its stored metrics, as Python's json writes it) is
+    null in report's metrics.json, which any strict JSON reader parses."""
+    mc = tmp_path / "mc"
+    shutil.copytree(campaign, mc)
+    first = sorted((mc / "conventional").glob("seed_*.json"))[0]
+    stored = json.loads(first.read_text())
+    stored["metrics"]["update_ms_max"] = math.nan
+    first.write_text(json.dumps(stored))
+    assert "NaN" in first.read_text()
+    write_report(mc, tmp_path / "rep", figures=False)
+
+    def refuse(name: str) -> None:
+        raise ValueError(f"not strict JSON: {name}")
+
+    metrics = json.loads((tmp_path / "rep" / "metrics.json").read_text(), parse_constant=refuse)
+    assert metrics[0]["update_ms_max"] is None
+
+
+def _report(capsys, *args: str) -> tuple[int, str]:
+    """``cikan report ARGS``: (exit code, stderr)."""
+    from cikan_ros.cli import main
+
+    rc = main(["report", *args])
+    return rc, capsys.readouterr().err
+
+
+def test_report_on_a_truncated_bag_is_partial_and_says_so(tmp_path, capsys):
+    """A bag whose MCAP file was cut in half (no summary, no end magic): the report holds what
+    is readable, up to the last step with every state, and says what is missing."""
+    bag = tmp_path / "cut"
+    shutil.copytree(BAG, bag)
+    mcap = next(bag.glob("*.mcap"))
+    mcap.write_bytes(mcap.read_bytes()[: mcap.stat().st_size // 2])
+    rc, err = _report(capsys, str(bag), "--out", str(tmp_path / "rep"), "--tables-only")
+    assert rc == 0 and "Traceback" not in err
+    assert err.count("\n") == 1 and "partial report: the bag is damaged (File end magic is invalid)" in err
+    m, = json.loads((tmp_path / "rep" / "metrics.json").read_text())
+    assert "the rest is missing" in m["partial"] and 0 < m["duration_s"] < 14400.0
+    assert "**Partial report** of `cut`" in (tmp_path / "rep" / "report.md").read_text()
+
+
+def test_report_on_a_bag_cut_before_any_step_is_one_line(tmp_path, capsys):
+    bag = tmp_path / "stub"
+    shutil.copytree(BAG, bag)
+    mcap = next(bag.glob("*.mcap"))
+    mcap.write_bytes(mcap.read_bytes()[:200])
+    rc, err = _report(capsys, str(bag), "--out", str(tmp_path / "rep"))
+    assert rc == 2 and err.count("\n") == 1 and "is unreadable" in err and "Traceback" not in err
+
+
+def test_report_on_the_mcap_file_is_the_bags_report(tmp_path, capsys):
+    """The bag's .mcap file given in place of its directory: the report of the bag; any other
+    file: one line, exit code 2."""
+    rc, _ = _report(capsys, str(next(BAG.glob("*.mcap"))), "--out", str(tmp_path / "file"), "--tables-only")
+    assert rc == 0
+    _report(capsys, str(BAG), "--out", str(tmp_path / "dir"), "--tables-only")
+    assert (tmp_path / "file" / "report.md").read_text() == (tmp_path / "dir" / "report.md").read_text()
+    rc, err = _report(capsys, str(BAG / "metadata.yaml"), "--out", str(tmp_path / "x"))
+    assert rc == 2 and err.count("\n") == 1 and "is a file" in err

@@ -347,6 +347,21 @@ def test_a_governor_failing_mid_mission_is_one_line_and_the_bag_stays_readable(r
     assert [stamp_ns(m) for _, m in msgs["/tsg/time_shift"]] == [stamp_ns(m) for _, m in msgs["/deputy/odom"]][:10]
 
 
+def test_a_governor_failing_at_start_says_where_the_bag_is(ros_env: int, tmp_path: Path) -> None:
+    """A --governor-exec that exits at once: the failure line says what became of the bag, and
+    says it truly (the recorder may or may not have opened it before it was stopped)."""
+    bag = tmp_path / "bag"
+    with pytest.raises(CikanError, match=r"governor \(exec:.*\) exited with code 3") as failure:
+        run_ros_mission(load_config(**{"mission.duration_s": 100.0}), bag=bag,
+                        governor_exec=f'{sys.executable} -c "import sys; sys.exit(3)"')
+    text = str(failure.value)
+    assert "\n" not in text
+    if f"bag kept in {bag}" in text:
+        assert (bag / "metadata.yaml").exists()
+    else:
+        assert ("no bag was written" in text or "removed the empty bag" in text) and not bag.exists()
+
+
 def test_bad_model_at_launch_is_one_line_and_a_rerun_may_reuse_the_bag(ros_env: int, tmp_path: Path) -> None:
     cfg = load_config(**{"mission.duration_s": 100.0})
     with pytest.raises(CikanError, match="governor_node exited with code 2: .*nope") as failure:

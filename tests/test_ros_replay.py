@@ -158,4 +158,4 @@ def test_progress_bar_on_a_terminal_unless_quiet(quiet: bool, ros_env: int) -> N
     if quiet:
         assert text.strip() == ""
     else:
-        assert "replay: " in text and "8884/8884" in text, text[-500:]
+        assert "cikan replay" in text and "8884/8884" in text, text[-500:]

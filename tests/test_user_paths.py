@@ -66,6 +66,10 @@ def test_montecarlo_on_two_workers_flies_the_missions_flown_one_by_one(campaign:
             gov = make_governor(name, cfg, pred)      # a new governor for each mission
             alone = run_mission(gov, sample_start(gov.predictor, seed), seed)
             expected = {k: v for k, v in alone.metrics().items() if not timing(k)}
+            if name != "conventional":   # a learned governor's runs also say how often its network was taken
+                from cikan_ros.learn.governor import nn_accept_rate
+
+                expected["nn_accept_rate"] = nn_accept_rate(alone.updates)
             assert {k: v for k, v in stored.items() if not timing(k) and k != "seed"} == expected, (name, seed)
             arrays = load_run_arrays(campaign / name / f"seed_{seed:05d}.npz")
             np.testing.assert_array_equal(arrays["x_d"], alone.x_d)

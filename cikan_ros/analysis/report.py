@@ -12,36 +12,35 @@ import json
 from pathlib import Path
 from typing import Any
 
-from ..config import Config
+from ..config import Config, config_from_flat
 from ..errors import CikanError
-from ..montecarlo import load_run_arrays, summarise
+from ..montecarlo import load_run_arrays, markdown_summary, summarise
+from ..strict_json import dumps
 from .figures import RunData, all_figures, constraint_histories, mean_tau
+from .flown import flown_markdown, flown_rows, governors_text, metric_rows
 
 #: Runs per governor drawn in the trajectory figures of a campaign (all runs enter Fig. 3c).
 MAX_DRAWN = 12
-
-METRIC_ROWS = (("success", "{}"), ("violations", "{}"), ("tau0_s", "{:.4f}"), ("t_tau_zero_s", "{}"),
-               ("t_docked_s", "{}"), ("final_distance_m", "{:.3e}"), ("final_speed_mps", "{:.3e}"),
-               ("delta_v_kmps", "{:.4f}"), ("min_h1_margin", "{:.3e}"), ("max_h3", "{:.3e}"),
-               ("updates", "{}"), ("update_ms_mean", "{:.3f}"), ("update_ms_max", "{:.3f}"),
-               ("active_update_ms_mean", "{:.3f}"), ("active_update_ms_max", "{:.3f}"),
-               ("unverified_shifts", "{}"), ("off_schedule_shifts", "{}"), ("missing_shifts", "{}"))
-
 
 def is_bag(path: Path) -> bool:
     return (path / "metadata.yaml").exists()
 
 
 def run_from_bag(path: Path, cfg: Config | None = None) -> tuple[RunData, dict[str, Any]]:
-    """A bag's run history and its metrics (computed by MissionResult.metrics)."""
-    from ..ros.bag_reader import bag_config, bag_governor, recorded_metrics
+    """A bag's run history and its metrics (computed by MissionResult.metrics); of a damaged bag,
+    what is readable of it, with ``partial``: what is missing
+    (:func:`cikan_ros.ros.bag_reader.read_bag_partial`)."""
+    from ..ros.bag_reader import bag_config, bag_governor, bag_model, read_bag_partial, recorded_metrics
 
     config = bag_config(path, cfg)
     gov = bag_governor(path)
-    res, metrics = recorded_metrics(path, config, gov)
+    msgs, missing = read_bag_partial(path)
+    res, metrics = recorded_metrics(path, config, gov, msgs)
+    if missing:
+        metrics["partial"] = missing
     m = res.margins
-    return (RunData(gov, res.t, res.x_d, res.x_c, res.u, res.tau, m.h1_normalised, m.h2, m.h3,
-                    label=path.name), metrics)
+    return (RunData(gov, res.t, res.x_d, res.x_c, res.u, res.tau, m.h1_normalised, m.h2, m.h3, config,
+                    label=path.name, model=bag_model(path)), metrics)
 
 
 def run_from_npz(json_path: Path) -> tuple[RunData, dict[str, Any]]:
@@ -50,14 +49,27 @@ def run_from_npz(json_path: Path) -> tuple[RunData, dict[str, Any]]:
     a = load_run_arrays(json_path.with_suffix(".npz"))
     gov = json_path.parent.name
     return (RunData(gov, a["t"], a["x_d"], a["x_c"], a["u"], a["tau"], a["h1_normalised"], a["h2"], a["h3"],
-                    label=f"{gov} seed {stored['metrics'].get('seed')}"), stored["metrics"])
+                    config_from_flat(stored["config"]), label=f"{gov} seed {stored['metrics'].get('seed')}"),
+            stored["metrics"])
+
+
+def source_dir(path: str | Path) -> Path:
+    """The directory a report reads: ``path``, or the bag a bag's .mcap file belongs to;
+    CikanError (one line) for anything else."""
+    p = Path(path)
+    if not p.exists():
+        raise CikanError(f"no such bag or directory: {p}")
+    if p.is_file() and p.suffix == ".mcap" and is_bag(p.parent):
+        return p.parent   # the bag's data file: the bag is its directory
+    if not p.is_dir():
+        raise CikanError(f"{p} is a file: give a bag directory (with metadata.yaml), a directory of bags "
+                         "or a Monte Carlo directory")
+    return p
 
 
 def load_runs(path: str | Path, cfg: Config | None = None) -> tuple[str, list[RunData], list[dict[str, Any]]]:
     """(kind, runs, metrics) of a bag, a directory of bags, or a Monte Carlo directory."""
-    p = Path(path)
-    if not p.exists():
-        raise CikanError(f"no such bag or directory: {p}")
+    p = source_dir(path)
     if is_bag(p):
         run, metrics = run_from_bag(p, cfg)
         return "bag", [run], [metrics]
@@ -75,14 +87,12 @@ def load_runs(path: str | Path, cfg: Config | None = None) -> tuple[str, list[Ru
 
 
 def _metrics_table(runs: list[RunData], metrics: list[dict[str, Any]]) -> str:
-    head = "| metric | " + " | ".join(r.label or r.governor for r in runs) + " |"
-    lines = [head, "|---|" + "---|" * len(runs)]
-    for key, fmt in METRIC_ROWS:
-        cells = []
-        for m in metrics:
-            v = m.get(key)
-            cells.append("-" if v is None else fmt.format(v))
-        lines.append(f"| {key} | " + " | ".join(cells) + " |")
+    """What each run flew and its metrics, one column per run (labels of the first run)."""
+    columns = [flown_rows(r.config, m["governor"], r.model, m.get("nn_accept_rate")) + metric_rows(m, r.config)
+               for r, m in zip(runs, metrics)]
+    lines = ["| | " + " | ".join(r.label or r.governor for r in runs) + " |", "|---|" + "---|" * len(runs)]
+    for i, (label, _) in enumerate(columns[0]):
+        lines.append(f"| {label} | " + " | ".join(col[i][1] if i < len(col) else "-" for col in columns) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -94,8 +104,9 @@ def write_report(path: str | Path, out_dir: str | Path, cfg: Config | None = Non
     writes the tables only. The paper's Table 2 rows appear beside a campaign of the paper's
     scenario from behind only.
     """
-    from .table import build_table, campaign_scenario, summary, to_csv, to_markdown
+    from .table import build_table, summary, to_csv, to_markdown
 
+    path = source_dir(path)
     kind, runs, metrics = load_runs(path, cfg)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -111,35 +122,34 @@ def write_report(path: str | Path, out_dir: str | Path, cfg: Config | None = Non
             # Fig. 4: the run closest to the LoS boundary (the paper shows an extreme case).
             figs["fig4_constraints"] = constraint_histories([runs[worst]], out / "fig4_constraints.png")
         rows = build_table(path)
-        scenario, approach = campaign_scenario(path)
-        table = to_markdown(rows, paper_rows=(scenario, approach) == ("paper", "behind"))
+        cfg_flown = runs[0].config
+        table = to_markdown(rows, paper_rows=(cfg_flown.scenario.name, cfg_flown.mission.approach) == ("paper", "behind"))
         (out / "table2.md").write_text(table)
         (out / "table2.csv").write_text(to_csv(rows))
-        lines += [f"Scenario `{scenario}`, approach from {approach}.", "",
+        lines += [flown_markdown(flown_rows(cfg_flown, governors_text(govs, cfg_flown))),
                   "## Table 2", "", table, "", "What it shows (generated from the table):", "",
                   summary(rows), "",
                   f"Per governor over its runs (the trajectory figures draw the first {MAX_DRAWN} runs of each; "
                   f"Fig. 4 shows run `{runs[worst].label}`, the one closest to the LoS boundary).", ""]
-        lines += ["| governor | runs | successes | violations | ΔV mean (km/s) | min h1 margin |", "|---|---|---|---|---|---|"]
-        for g in govs:
-            s = summarise([m for r, m in zip(runs, metrics) if r.governor == g])
-            lines.append(f"| {g} | {s['runs']} | {s['successes']} | {s['violations']} | "
-                         f"{s['delta_v_kmps_mean']:.4f} | {s['min_h1_margin']:.2e} |")
-        lines.append("")
+        lines += [markdown_summary({g: summarise([m for r, m in zip(runs, metrics) if r.governor == g])
+                                    for g in govs})]
     else:
         figs = all_figures(runs, out) if figures else {}
+        lines += [f"**Partial report** of `{r.label}`: {m['partial']}.\n" for r, m in zip(runs, metrics)
+                  if m.get("partial")]
         lines += ["## Metrics", "", _metrics_table(runs, metrics), ""]
     if notes:
         lines += [notes.rstrip(), ""]
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=1))
+    (out / "metrics.json").write_text(dumps(metrics, indent=1))
     captions = {
         "fig3a_relative_vnb": "Fig. 3a: relative trajectories in the chief's VNB frame with the LoS cone",
-        "fig3a_relative_vnb_zoom": "Fig. 3a (zoom): the last 5 km",
+        "fig3a_relative_vnb_zoom": f"Fig. 3a (zoom): the last {runs[0].config.constraints.gamma1_km:g} km "
+                                   "(where h3 applies)",
         "fig3b_tau": "Fig. 3b: time shift histories",
         "fig3c_mean_tau": "Fig. 3c: mean time shift",
         "fig3d_distance": "Fig. 3d: relative distance",
         "fig3e_speed": "Fig. 3e: relative speed",
-        "fig4_constraints": "Fig. 4: constraint histories h1, h2, h3",
+        "fig4_constraints": "Fig. 4: constraint histories h1, h2 (m/s²), h3 (m/s)",
     }
     lines += ["## Figures", ""] if figs else []
     for name, fpath in figs.items():

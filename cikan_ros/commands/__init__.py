@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
-import math
 from typing import Any
 
 import yaml
@@ -69,27 +67,3 @@ def config_from_args(args: argparse.Namespace) -> Config:
         except yaml.YAMLError:
             raise ConfigError(f"--set {key}: value {text!r} is not valid YAML") from None
     return load_config(args.config, **overrides)
-
-
-def json_default(obj: Any) -> Any:
-    """JSON encoder fallback for numpy scalars and arrays."""
-    import numpy as np
-
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
-
-
-def dumps(obj: Any) -> str:
-    """One-line JSON with NaN/inf written as null (strict JSON)."""
-    def clean(v: Any) -> Any:
-        if isinstance(v, float) and not math.isfinite(v):
-            return None
-        if isinstance(v, dict):
-            return {k: clean(x) for k, x in v.items()}
-        if isinstance(v, (list, tuple)):
-            return [clean(x) for x in v]
-        return v
-    return json.dumps(clean(json.loads(json.dumps(obj, default=json_default))), allow_nan=False)

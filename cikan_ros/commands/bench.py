@@ -6,7 +6,8 @@ import argparse
 from typing import TYPE_CHECKING, Any, Callable
 
 from ..config import Config
-from . import add_config_args, config_from_args, dumps
+from ..strict_json import dumps
+from . import add_config_args, config_from_args
 
 if TYPE_CHECKING:
     from ..timing import BenchStates

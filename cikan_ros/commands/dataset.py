@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import argparse
 
-from . import add_config_args, config_from_args, dumps, seed_arg
+from ..strict_json import dumps
+from . import add_config_args, config_from_args, seed_arg
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -41,6 +42,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..learn.dataset import DatasetSpec, generate, scenario_sigma_km, write_parquet
     from ..learn.errors import DatasetError
+    from ..progress import on_terminal
 
     if args.chunk < 1:
         raise DatasetError("--chunk must be >= 1")
@@ -53,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
 
     workers = args.workers if args.workers is not None else (os.cpu_count() or 1)
     df, meta = generate(cfg, args.labels, spec, workers=workers,
-                        dask_address=args.dask, chunk=args.chunk, progress=not args.quiet,
+                        dask_address=args.dask, chunk=args.chunk, progress=on_terminal(args.quiet or args.json),
                         governor=args.governor)
     path = write_parquet(df, meta, args.out)
     summary = {k: v for k, v in meta.items() if k != "config"}

@@ -3,35 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from typing import Any
 
-from . import add_config_args, config_from_args, dumps, seed_arg
-
-SUMMARY_KEYS = (
-    ("success", "docked with zero violations", "{}"),
-    ("violations", "control steps with a violation", "{}"),
-    ("violations_between", "truth states violating between samples", "{}"),
-    ("tau0_s", "first time shift tau_0 [s]", "{:.6f}"),
-    ("t_tau_zero_s", "tau reached 0 at [s]", "{}"),
-    ("t_docked_s", "docked (<{dock_distance_m:g} m, <{dock_speed_mps:g} m/s) at [s]", "{}"),
-    ("final_distance_m", "final distance [m]", "{:.3e}"),
-    ("final_speed_mps", "final relative speed [m/s]", "{:.3e}"),
-    ("delta_v_kmps", "delta-V [km/s]", "{:.4f}"),
-    ("min_h1_margin", "min LoS margin -h1/(|v_c||p|)", "{:.3e}"),
-    ("max_h3", "max h3 [km/s]", "{:.3e}"),
-    ("updates", "governor updates", "{}"),
-    ("update_ms_mean", "update time mean / max [ms]", None),
-    ("active_update_ms_mean", "active-phase update mean / max [ms]", None),
-)
-#: Governor contract audit of a ROS run (cikan_ros.mission.audit_shifts), shown when present.
-AUDIT_KEYS = (
-    ("unverified_shifts", "time shifts not verified (audit)", "{}"),
-    ("off_schedule_shifts", "time shifts changed off schedule", "{}"),
-    ("missing_shifts", "steps without a time shift", "{}"),
-    ("lockstep_deadlines", "wall-clock deadlines fired (each fails the run)", "{}"),
-)
+from ..strict_json import dumps
+from . import add_config_args, config_from_args, seed_arg
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -51,35 +27,34 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "(default: the nominal start)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     p.add_argument("--bag", metavar="DIR", default=None,
-                   help="ROS run: record to this bag directory (default: bags/<time>_<governor>)")
+                   help="ROS run: record to this bag directory (default: runs/bags/<time>_<governor>); "
+                        "not with --offline")
     add_config_args(p)
     p.set_defaults(func=run)
 
 
-def print_summary(metrics: dict[str, Any], title: str) -> None:
-    """A readable table of a mission's metrics."""
+def print_summary(metrics: dict[str, Any], title: str, cfg: Any, model: str | None = None) -> None:
+    """A readable table of what a mission flew (:func:`cikan_ros.analysis.flown.flown_rows`) and
+    its metrics (:func:`~cikan_ros.analysis.flown.metric_rows`); the bag's path on a line of its
+    own, whole."""
     from rich.console import Console
     from rich.markup import escape
     from rich.table import Table
 
+    from ..analysis.flown import flown_rows, metric_rows
+
     table = Table(show_header=False)
-    for key, label, fmt in SUMMARY_KEYS + tuple(a for a in AUDIT_KEYS if a[0] in metrics):
-        if fmt is None:
-            stem = key.removesuffix("_mean")
-            value = " / ".join("-" if metrics.get(k) is None else f"{metrics[k]:.3f}"
-                               for k in (key, stem + "_max"))
-        else:
-            v = metrics.get(key)
-            value = "-" if v is None else fmt.format(v)
-        table.add_row(escape(label.format(**{k: metrics.get(k, math.nan) for k in
-                                              ("dock_distance_m", "dock_speed_mps")})), value)
-    if metrics.get("foreign_model"):
-        table.add_row("model", f"FOREIGN: {metrics['foreign_model']} (learned.foreign_model)")
-    if "bag" in metrics:
-        table.add_row("bag", str(metrics["bag"]))
+    flown = flown_rows(cfg, metrics["governor"], model, metrics.get("nn_accept_rate"))
+    for label, value in flown:
+        table.add_row(escape(label), escape(value))
+    table.add_section()
+    for label, value in metric_rows(metrics, cfg):
+        table.add_row(escape(label), escape(value))
     console = Console()
     console.print(escape(title), style="bold")
     console.print(table)
+    if "bag" in metrics:
+        print(f"bag: {metrics['bag']}")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -88,8 +63,15 @@ def run(args: argparse.Namespace) -> int:
     if args.governor_exec is not None and (args.offline or args.governor is not None):
         raise ConfigError("--governor-exec replaces governor_node in the ROS graph: it takes "
                           "neither --offline nor --governor")
+    if args.offline and args.bag is not None:
+        raise ConfigError("--bag records the ROS graph's topics; an offline mission has none to record "
+                          "(drop --offline to record it, or keep an offline run's whole record with "
+                          "`cikan montecarlo --runs 1 --seed N --out DIR`, which `cikan report` reads)")
+    from ..progress import on_terminal
+
     args.governor = args.governor or "conventional"
     cfg = config_from_args(args)
+    progress = on_terminal(args.json)
     if args.offline:
         from ..governor import warm_up
         from ..mission import nominal_start, run_mission, sample_start
@@ -102,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
         # first update 1,779 ms). The mission flies the same either way.
         warm_up(governor, nominal_start(pred), pred.orbit.state(0.0))
         x0 = nominal_start(pred) if args.seed is None else sample_start(pred, args.seed)
-        result = run_mission(governor, x0, args.seed)
+        result = run_mission(governor, x0, args.seed, progress=progress)
         metrics = result.metrics()
         if governor.name != "conventional":  # fraction of consulted proposals that passed Verify
             from ..learn.governor import nn_accept_rate
@@ -110,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
         if getattr(governor, "foreign", None):
             metrics["foreign_model"] = governor.foreign
         metrics.update(seed=args.seed, mode="offline")
+        model = getattr(governor, "model_dir", None)
     else:
         from ..ros.launch import run_ros_mission
 
@@ -120,13 +103,17 @@ def run(args: argparse.Namespace) -> int:
 
         metrics = run_ros_mission(cfg, governor=args.governor, seed=args.seed, bag=args.bag,
                                   config_path=args.config, overrides=args.overrides,
-                                  governor_exec=args.governor_exec)
+                                  governor_exec=args.governor_exec, progress=progress)
         metrics.update(seed=args.seed, mode="ros")
+        from ..ros.bag_reader import bag_model
+
+        model = bag_model(metrics["bag"])
     if args.json:
         print(dumps(metrics))
     else:
         start = "nominal start" if args.seed is None else f"Monte Carlo start, seed {args.seed}"
-        print_summary(metrics, f"cikan mission: {metrics['governor']} governor, {start} ({metrics['mode']})")
+        print_summary(metrics, f"cikan mission: {metrics['governor']} governor, {start} ({metrics['mode']})",
+                      cfg, None if model is None else str(model))
     sys.stdout.flush()
     if metrics.get("lockstep_deadlines"):
         print(f"cikan mission: failed: {metrics['lockstep_deadlines']} wall-clock deadline(s) fired in the "

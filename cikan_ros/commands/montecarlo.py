@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
-from . import add_config_args, config_from_args, dumps, seed_arg
+from ..strict_json import dumps
+from . import add_config_args, config_from_args, seed_arg
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -37,6 +37,8 @@ def run(args: argparse.Namespace) -> int:
     from ..errors import CikanError
     from ..registry import campaign_names, shipped_names
     from ..montecarlo import markdown_summary, run_campaign, summarise
+    from ..analysis.flown import flown_markdown, flown_rows, governors_text
+    from ..progress import on_terminal
 
     cfg = config_from_args(args)
     if args.corners and cfg.truth.draw == "corner":
@@ -44,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
     governors = (campaign_names() if args.governor == "all" else shipped_names(cfg)
                  if args.governor == "shipped" else args.governor.split(","))
     results = run_campaign(cfg, governors, args.runs, args.seed, args.out, args.workers, args.dask,
-                           at_corners=args.corners)
+                           at_corners=args.corners, progress=on_terminal(args.json))
     summaries: dict = {g: summarise(runs) for g, runs in results.items()}
     text = markdown_summary(summaries)
     if args.corners:
@@ -53,11 +55,12 @@ def run(args: argparse.Namespace) -> int:
             summaries[g]["corners"] = {r["corner"]: r for r in rows if r["governor"] == g}
         text += "\n" + markdown_corner_table(rows)
     out = Path(args.out)
-    (out / "summary.json").write_text(json.dumps(summaries, indent=1))
-    (out / "summary.md").write_text(text)
+    (out / "summary.json").write_text(dumps(summaries, indent=1))
+    flown = flown_markdown(flown_rows(cfg, governors_text(governors, cfg)))
+    (out / "summary.md").write_text(f"{flown}\n{text}")
     if args.json:
         print(dumps(summaries))
     else:
-        print(text, end="")
+        print(f"{flown}\n{text}", end="")
         print(f"per-run results and summary in {out}/")
     return 0

@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import sys
 
-from . import dumps
+from ..strict_json import dumps
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -38,12 +37,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..progress import on_terminal
     from ..ros.replay import DISCOVERY_S, replay
 
     counts = replay(args.bag, rate=args.rate, fast=args.fast, wait_subscribers=args.wait_subscribers,
                     wait_timeout_s=args.wait_timeout,
                     discovery_s=DISCOVERY_S if args.discovery is None else args.discovery,
-                    progress=not args.quiet and sys.stderr.isatty(),
+                    progress=on_terminal(args.quiet or args.json),
                     say=(lambda _text: None) if args.quiet else None)
     if args.json:
         print(dumps(counts))

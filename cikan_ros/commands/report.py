@@ -93,6 +93,12 @@ def run(args: argparse.Namespace) -> int:
         write = write_corners if args.corners else write_robustness
         page = write(args.source, args.out, notes, args.title, name)
     else:
+        import json
+        import sys
+
         page = write_report(args.source, args.out, cfg, args.title, notes, figures=not args.tables_only)
+        for m in json.loads((page.parent / "metrics.json").read_text()):
+            if m.get("partial"):
+                print(f"cikan report: partial report: {m['partial']}", file=sys.stderr)
     print(f"report: {page}")
     return 0

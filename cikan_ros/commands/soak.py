@@ -12,7 +12,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from . import add_config_args, config_from_args, dumps, int_at_least, seed_arg
+from ..strict_json import dumps
+from . import add_config_args, config_from_args, int_at_least, seed_arg
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -51,6 +52,7 @@ def run(args: argparse.Namespace) -> int:
     import shutil
 
     from ..errors import CikanError
+    from ..progress import Bar, on_terminal
     from ..ros.launch import die_with_parent, run_ros_mission
 
     cfg = config_from_args(args)
@@ -66,6 +68,7 @@ def run(args: argparse.Namespace) -> int:
         raise KeyboardInterrupt   # SIGTERM ends the soak as Ctrl-C does: the finally below cleans up
 
     previous = signal.signal(signal.SIGTERM, terminate)
+    bar = Bar(args.runs, "cikan soak", "missions", on_terminal(args.json)).start()
     try:
         for i in range(args.runs):
             bag = out / f"run_{i:03d}"
@@ -89,9 +92,11 @@ def run(args: argparse.Namespace) -> int:
             rows.append(row)
             if not args.json:
                 print(_line(row), flush=True)
+            bar.advance()
             if not args.out:
                 shutil.rmtree(bag, ignore_errors=True)
     finally:
+        bar.close()
         signal.signal(signal.SIGTERM, previous)
         for p in load:
             p.kill()

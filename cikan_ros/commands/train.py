@@ -6,7 +6,8 @@ import argparse
 from typing import Any
 
 from ..learn.features import FEATURE_SETS
-from . import add_config_args, config_from_args, dumps, seed_arg
+from ..strict_json import dumps
+from . import add_config_args, config_from_args, seed_arg
 
 FAMILY_HELP = "cikan (B-spline KAN), grbf, rswaf, relu (MLP), gelu (MLP)"
 
@@ -89,6 +90,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..learn.arch import Arch
     from ..learn.train import TrainConfig, load_data, train
+    from ..progress import on_terminal
 
     hp: dict = {"lr": 3e-3, "weight_decay": 1e-5, "batch": 512, "theta_c": 1.0}
     arch = Arch(args.model, width=32 if args.model in ("cikan", "grbf", "rswaf") else 128, layers=3,
@@ -144,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
         args.out = str(scenario_model_dir(cfg_run.scenario.models_dir, args.model, cfg_run.mission.approach))
     ckpt = args.checkpoint_dir or str(Path("runs/checkpoints") / Path(args.out).name)
     res = train(arch, data, cfg, args.out, checkpoint_dir=ckpt, resume=args.resume,
-                progress=not args.quiet, name=Path(args.out).name, card_extra=extra)
+                progress=on_terminal(args.quiet or args.json), name=Path(args.out).name, card_extra=extra)
     losses = res["losses"]
     if args.json:
         print(dumps({"out": args.out, "architecture": arch.to_dict(), "n_params": arch.n_params(),

@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 
 from ..learn.features import FEATURE_SETS
-from . import add_config_args, config_from_args, dumps, seed_arg
+from ..strict_json import dumps
+from . import add_config_args, config_from_args, seed_arg
 
 
 def register(sub: argparse._SubParsersAction) -> None:

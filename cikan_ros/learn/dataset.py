@@ -159,15 +159,17 @@ def _chunks(size: int) -> Iterator[list[int]]:
 
 
 def generate(cfg: Config, n_labels: int, spec: DatasetSpec, workers: int = 1,
-             dask_address: str | None = None, chunk: int = 4, progress: bool = True,
+             dask_address: str | None = None, chunk: int = 4, progress: bool = False,
              governor: str = "conventional") -> tuple["Any", dict[str, Any]]:
     """Generate exactly ``n_labels`` labels. Returns (pandas DataFrame, metadata).
 
     ``workers`` local processes (1: in this process) or the Dask cluster at ``dask_address``;
-    ``governor`` flies the missions (on-policy labels when it is not the conventional TSG).
+    ``governor`` flies the missions (on-policy labels when it is not the conventional TSG);
+    ``progress``: show a progress bar (:mod:`cikan_ros.progress`).
     """
     import pandas as pd
-    from tqdm import tqdm
+
+    from ..progress import Bar
 
     if n_labels < 1:
         raise DatasetError(f"--labels must be >= 1, got {n_labels}")
@@ -183,20 +185,19 @@ def generate(cfg: Config, n_labels: int, spec: DatasetSpec, workers: int = 1,
     parts: list[dict[str, Any]] = []
     total = 0
     n_missions = 0
-    bar = tqdm(total=n_labels, unit="label", disable=not progress, desc="cikan dataset")
-    try:
-        for res in (r for chunk_results in stream for r in chunk_results):
-            n_missions += 1
-            take = min(res["n"], n_labels - total)
-            if take > 0:
-                parts.append({**res, "n": take})
-                total += take
-                bar.update(take)
-            if total >= n_labels:
-                break
-    finally:
-        stream.close()  # cancels what is still pending and releases the workers
-        bar.close()
+    with Bar(n_labels, "cikan dataset", "labels", progress) as bar:
+        try:
+            for res in (r for chunk_results in stream for r in chunk_results):
+                n_missions += 1
+                take = min(res["n"], n_labels - total)
+                if take > 0:
+                    parts.append({**res, "n": take})
+                    total += take
+                    bar.advance(take)
+                if total >= n_labels:
+                    break
+        finally:
+            stream.close()  # cancels what is still pending and releases the workers
     wall = time.perf_counter() - start
     cols: dict[str, Any] = {c: [] for c in COLUMNS}
     for p in parts:

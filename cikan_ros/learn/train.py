@@ -185,16 +185,17 @@ def _load_checkpoint(d: Path, net: TimeShiftNet, opt: torch.optim.Optimizer
 
 
 def train(arch: Arch, data: Data, cfg: TrainConfig, out: str | Path | None,
-          checkpoint_dir: str | Path | None = None, resume: bool = False, progress: bool = True,
+          checkpoint_dir: str | Path | None = None, resume: bool = False, progress: bool = False,
           on_epoch: Callable[[int, float], None] | None = None, name: str | None = None,
           card_extra: dict[str, Any] | None = None) -> dict[str, Any]:
     """Train one network; write the best (lowest validation loss) to ``out`` as a model file.
 
     ``on_epoch(epoch, val_loss_at_theta_c_1)`` is called after every epoch (Optuna pruning raises
     from it; θ_c = 1 makes losses of trials with different θ_c comparable).
+    ``progress``: show a progress bar (:mod:`cikan_ros.progress`).
     Returns the card's ``losses`` and ``training`` sections.
     """
-    from tqdm import tqdm
+    from ..progress import Bar
 
     cfg.check()
     if arch.features != data.features:
@@ -224,51 +225,49 @@ def train(arch: Arch, data: Data, cfg: TrainConfig, out: str | Path | None,
         for g, lr in zip(opt.param_groups, sched.get_lr()):
             g["lr"] = lr
     t0 = time.perf_counter() - st["wall_s"]
-    bar = tqdm(total=cfg.epochs, initial=st["epoch"], unit="epoch", disable=not progress,
-               desc=f"train {name or arch.family}")
     stop_reason = "epochs"
-    while st["epoch"] < cfg.epochs:
-        ep = st["epoch"]
-        ep_start = time.perf_counter()
-        net.train()
-        perm = torch.from_numpy(np.random.default_rng([cfg.seed, ep]).permutation(n_train))
-        total, count = 0.0, 0
-        for i in range(0, n_train, cfg.batch):
-            idx = perm[i:i + cfg.batch]
-            loss = cinn_log_loss(net(z_train[idx]), yt[idx], cfg.theta_c)
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            total += loss.item() * len(idx)
-            count += len(idx)
-        sched.step()
-        p_val = predict(net, z["val"])
-        val = cinn_log_loss_np(p_val, data.splits["val"].y, cfg.theta_c)
-        val1 = cinn_log_loss_np(p_val, data.splits["val"].y, 1.0)
-        st["epoch"] = ep + 1
-        st["history"].append({"epoch": ep + 1, "train_loss": total / count, "val_loss": val,
-                              "val_loss_theta1": val1,
-                              "lr": opt.param_groups[0]["lr"]})
-        if val < st["best_val"] * (1 - 1e-4):
-            st.update(best_val=val, best_epoch=ep + 1, bad_epochs=0)
-            best = {k: v.detach().clone() for k, v in net.state_dict().items()}
-        else:
-            st["bad_epochs"] += 1
-        st["wall_s"] = time.perf_counter() - t0
-        if ckpt is not None:
-            _save_checkpoint(ckpt, net, opt, best, st)
-        bar.set_postfix(train=f"{total / count:.3e}", val=f"{val:.3e}", best=f"{st['best_val']:.3e}")
-        bar.update(1)
-        if on_epoch is not None:
-            on_epoch(ep + 1, val1)
-        if st["bad_epochs"] >= cfg.patience:
-            stop_reason = "early stopping"
-            break
-        epoch_s = time.perf_counter() - ep_start
-        if cfg.max_minutes > 0 and st["wall_s"] + epoch_s > cfg.max_minutes * 60:
-            stop_reason = "wall budget"
-            break
-    bar.close()
+    with Bar(cfg.epochs, f"cikan train {name or arch.family}", "epochs", progress,
+             completed=st["epoch"]) as bar:
+        while st["epoch"] < cfg.epochs:
+            ep = st["epoch"]
+            ep_start = time.perf_counter()
+            net.train()
+            perm = torch.from_numpy(np.random.default_rng([cfg.seed, ep]).permutation(n_train))
+            total, count = 0.0, 0
+            for i in range(0, n_train, cfg.batch):
+                idx = perm[i:i + cfg.batch]
+                loss = cinn_log_loss(net(z_train[idx]), yt[idx], cfg.theta_c)
+                opt.zero_grad(set_to_none=True)
+                loss.backward()
+                opt.step()
+                total += loss.item() * len(idx)
+                count += len(idx)
+            sched.step()
+            p_val = predict(net, z["val"])
+            val = cinn_log_loss_np(p_val, data.splits["val"].y, cfg.theta_c)
+            val1 = cinn_log_loss_np(p_val, data.splits["val"].y, 1.0)
+            st["epoch"] = ep + 1
+            st["history"].append({"epoch": ep + 1, "train_loss": total / count, "val_loss": val,
+                                  "val_loss_theta1": val1,
+                                  "lr": opt.param_groups[0]["lr"]})
+            if val < st["best_val"] * (1 - 1e-4):
+                st.update(best_val=val, best_epoch=ep + 1, bad_epochs=0)
+                best = {k: v.detach().clone() for k, v in net.state_dict().items()}
+            else:
+                st["bad_epochs"] += 1
+            st["wall_s"] = time.perf_counter() - t0
+            if ckpt is not None:
+                _save_checkpoint(ckpt, net, opt, best, st)
+            bar.advance(1, note=f"val {val:.2e}, best {st['best_val']:.2e}")
+            if on_epoch is not None:
+                on_epoch(ep + 1, val1)
+            if st["bad_epochs"] >= cfg.patience:
+                stop_reason = "early stopping"
+                break
+            epoch_s = time.perf_counter() - ep_start
+            if cfg.max_minutes > 0 and st["wall_s"] + epoch_s > cfg.max_minutes * 60:
+                stop_reason = "wall budget"
+                break
     net.load_state_dict(best)
     losses = {"definition": "mean((y - y_hat)^2) + theta_c * mean(relu(y - y_hat)^2), y = ln|tau*| [s]",
               "theta_c": cfg.theta_c}

@@ -40,6 +40,7 @@ from ..config import Config, config_from_flat, load_config
 from ..constraints import margins
 from ..errors import CikanError
 from ..governor import UpdateRecord
+from ..learn.governor import nn_accept_rate
 from ..mission import MissionResult, Schedule, audit_shifts
 from ..tsg import Predictor
 from ..units import m_to_km
@@ -53,15 +54,73 @@ _COUNTS = ("k", "steps", "deadline_misses", "rejected", "controller_holds")
 
 
 def read_bag(path: str | Path) -> dict[str, list[tuple[int, Any]]]:
-    """Every message of a bag, decoded by rosbags, as ``{topic: [(log_time_ns, msg), ...]}``."""
-    from rosbags.highlevel import AnyReader
+    """Every message of a bag, decoded by rosbags, as ``{topic: [(log_time_ns, msg), ...]}``;
+    CikanError (one line) if the bag cannot be read whole (:func:`read_bag_partial` reads what
+    is readable of a damaged one)."""
+    from rosbags.highlevel import AnyReader, AnyReaderError
     from rosbags.typesys import Stores, get_typestore
 
     out: dict[str, list[tuple[int, Any]]] = {}
-    with AnyReader([Path(path)], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
-        for conn, t, raw in reader.messages():
-            out.setdefault(conn.topic, []).append((t, reader.deserialize(raw, conn.msgtype)))
+    try:
+        with AnyReader([Path(path)], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+            for conn, t, raw in reader.messages():
+                out.setdefault(conn.topic, []).append((t, reader.deserialize(raw, conn.msgtype)))
+    except AnyReaderError as exc:
+        raise CikanError(f"bag {path} is unreadable: {exc}") from None
     return out
+
+
+#: Topics of the states of every step (measured and true): a damaged bag is read up to the last
+#: step all of them hold (:func:`read_bag_partial`).
+STATE_TOPICS = (CHIEF_ODOM, DEPUTY_ODOM, TRUTH_CHIEF, TRUTH_DEPUTY)
+
+
+def read_bag_partial(path: str | Path) -> tuple[dict[str, list[tuple[int, Any]]], str | None]:
+    """(messages, what is missing) of a bag: :func:`read_bag`'s messages and None for a whole bag;
+    for a damaged one (an MCAP file cut short: no summary, a torn last record) what mcap's stream
+    reader gets from its start, up to the last step whose states every state topic holds, and a
+    sentence saying what is missing. CikanError (one line) when nothing is readable."""
+    try:
+        return read_bag(path), None
+    except CikanError as exc:
+        damage = str(exc).split(": ", 1)[-1].rstrip(".")
+    from mcap.stream_reader import StreamReader
+    from mcap.records import Channel, Message, Schema
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    files = sorted(Path(path).glob("*.mcap"))
+    schemas: dict[int, str] = {}
+    channels: dict[int, tuple[str, str]] = {}
+    out: dict[str, list[tuple[int, Any]]] = {}
+    if len(files) == 1:
+        with open(files[0], "rb") as f:
+            try:
+                for rec in StreamReader(f, record_size_limit=1 << 30).records:
+                    if isinstance(rec, Schema):
+                        schemas[rec.id] = rec.name
+                    elif isinstance(rec, Channel):
+                        channels[rec.id] = (rec.topic, schemas[rec.schema_id])
+                    elif isinstance(rec, Message):
+                        topic, msgtype = channels[rec.channel_id]
+                        out.setdefault(topic, []).append((rec.log_time, store.deserialize_cdr(rec.data, msgtype)))
+            except Exception:  # noqa: BLE001 - whatever the torn end raises, what came before it stands
+                pass
+    states = [{t for t, _ in out.get(topic, [])} for topic in STATE_TOPICS if topic in out]
+    common = sorted(set.intersection(*states)) if states else []
+    if not common:
+        raise CikanError(f"bag {path} is unreadable ({damage}) and holds no step's states before the damage")
+    last = common[-1]
+    kept = {topic: [(t, m) for t, m in msgs if t <= last] for topic, msgs in out.items()}
+    read = sum(len(v) for v in kept.values())
+    try:
+        total = int(yaml.safe_load((Path(path) / "metadata.yaml").read_text())
+                    ["rosbag2_bagfile_information"]["message_count"])
+    except (OSError, TypeError, KeyError, ValueError, yaml.YAMLError):
+        total = None
+    of = f" of the {total} its metadata counts" if total else ""
+    return kept, (f"the bag is damaged ({damage}): read {read} messages{of}, up to "
+                  f"{(last - common[0]) / 1e9:g} s after its first state; the rest is missing")
 
 
 #: The simulator's topics, published at every state t_0..t_K or step t_0..t_{K-1} whatever the
@@ -255,8 +314,10 @@ def recorded_metrics(path: str | Path, cfg: Config, governor: str,
     """(MissionResult, metrics) of a recorded mission: :meth:`MissionResult.metrics`, plus the
     governor contract audit of its shifts (:func:`cikan_ros.mission.audit_shifts`):
     ``unverified_shifts``, ``off_schedule_shifts`` and ``missing_shifts`` (steps with no valid
-    shift), and the simulator's summary under ``ros`` when it was recorded. Values the bag does
-    not hold (decision wall times without governor_node's records) are None."""
+    shift), the simulator's summary under ``ros`` when it was recorded, and, where a model flew
+    (the governor's announcement names one), ``nn_accept_rate``
+    (:func:`cikan_ros.learn.governor.nn_accept_rate` of its recorded decisions). Values the bag
+    does not hold (decision wall times without governor_node's records) are None."""
     result, summary = mission_from_bag(path, cfg, governor, msgs)
     seen_d = result.x_d if result.x_d_seen is None else result.x_d_seen
     seen_c = None if result.x_c_seen is None else result.x_c_seen
@@ -268,10 +329,19 @@ def recorded_metrics(path: str | Path, cfg: Config, governor: str,
                    missing_shifts=summary.pop("missing_shifts"))
     if summary:
         metrics["ros"] = summary
-    foreign = [a["foreign_model"] for a in bag_governor_announcements(path) if a.get("foreign_model")]
+    announced = bag_governor_announcements(path)
+    if any(a.get("model") for a in announced):
+        metrics["nn_accept_rate"] = nn_accept_rate(result.updates)
+    foreign = [a["foreign_model"] for a in announced if a.get("foreign_model")]
     if foreign:
         metrics["foreign_model"] = foreign[-1]
     return result, metrics
+
+
+def bag_model(path: str | Path) -> str | None:
+    """The model directory the bag's governor announced (the last one), or None."""
+    models = [a["model"] for a in bag_governor_announcements(path) if a.get("model")]
+    return models[-1] if models else None
 
 
 # -- metadata -----------------------------------------------------------------------------------

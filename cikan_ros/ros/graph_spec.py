@@ -155,9 +155,10 @@ MAX_DRAIN_S = 300.0
 
 # -- a mission's arguments ----------------------------------------------------------------------
 #: Arguments of a mission and their defaults: seed -1 is the nominal start; the bag is a new
-#: directory ``bags/<UTC start time>_<governor>`` (``{utc}`` in ``recorder.bag`` is that time).
+#: directory ``runs/bags/<UTC start time>_<governor>`` (``{utc}`` in ``recorder.bag`` is that
+#: time; ``runs/`` is ignored by git, ``bags/`` holds the committed reference bags).
 ARGUMENTS: dict[str, Any] = {"governor": "conventional", "seed": -1, "scenario": "paper",
-                             "approach": "behind", "bag": "bags/{utc}_{governor}"}
+                             "approach": "behind", "bag": "runs/bags/{utc}_{governor}"}
 #: The format of ``{utc}``.
 UTC_FORMAT = "%Y%m%dT%H%M%SZ"
 

@@ -35,11 +35,12 @@ import yaml
 from ..config import Config
 from ..errors import CikanError, MissionError
 from ..paths import shipped
+from ..progress import Bar
 from ..tsg import Predictor
 from .bag_reader import SIM_TOPICS, check_messages, read_bag, recorded_metrics, sim_summary
 from .domain import lease_domain
-from .graph_spec import (ACCEL_CMD, ACK_BUDGET_S, ARGUMENTS, EXIT_BAD_INPUT, MAX_DRAIN_S, NODE_BY_NAME, NODES,
-                         TIME_SHIFT, UTC_FORMAT, node_parameters)
+from .graph_spec import (ACCEL_CMD, ACK_BUDGET_S, ARGUMENTS, CLOCK, EXIT_BAD_INPUT, MAX_DRAIN_S, NODE_BY_NAME,
+                         NODES, TIME_SHIFT, UTC_FORMAT, node_parameters)
 
 
 def _nest(flat: dict[str, Any]) -> dict[str, Any]:
@@ -206,12 +207,30 @@ def discard_empty_bag(bag: Path) -> bool:
     return True
 
 
+#: How often (wall) the launcher looks at the bag for its progress bar.
+PROGRESS_PERIOD_S = 0.5
+
+
+def recorded_steps_so_far(bag: Path) -> int:
+    """Steps of a running mission the recorder has written to ``bag`` so far: its /clock messages
+    after the first (t_0), from metadata.yaml, which the recorder rewrites atomically at every
+    flush (``recorder.flush_period_s``). Read by the launcher alone: it costs the graph nothing.
+    0 before the first flush."""
+    try:
+        meta = yaml.load((bag / "metadata.yaml").read_text(), Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
+        topics = meta["rosbag2_bagfile_information"]["topics_with_message_count"]
+    except (OSError, TypeError, KeyError, yaml.YAMLError):
+        return 0
+    clock = [t["message_count"] for t in topics if t.get("topic_metadata", {}).get("name") == CLOCK]
+    return max(0, int(clock[0]) - 1) if clock else 0
+
+
 def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | None = None,
                     bag: str | os.PathLike | None = None, config_path: str | None = None,
                     overrides: list[str] | None = None, *, stop_on_dock: bool = False,
                     node_params: dict[str, Any] | None = None, timeout_s: float = 3600.0,
                     keep_logs: bool = False, on_started: Any = None,
-                    governor_exec: str | None = None) -> dict[str, Any]:
+                    governor_exec: str | None = None, progress: bool = False) -> dict[str, Any]:
     """Run one lockstep mission as the ROS graph; return the recorded metrics
     (:func:`cikan_ros.ros.bag_reader.recorded_metrics`) + ``bag`` + ``ros``.
 
@@ -223,6 +242,8 @@ def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | Non
     called once every process runs (tests use it to inject faults). A failure raises one
     CikanError line naming the node, its exit code, its last error line and where the logs are;
     a bag without a message is removed then, a bag with messages is kept (closed, readable).
+    ``progress``: show a progress bar of the steps the recorder has written to the bag
+    (:func:`recorded_steps_so_far`).
     """
     commands = {"governor": exec_command(governor_exec)} if governor_exec is not None else {}
     if governor_exec is not None:
@@ -256,24 +277,38 @@ def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | Non
     main_thread = threading.current_thread() is threading.main_thread()
     # SIGTERM stops the graph like Ctrl-C (signal handlers exist only in the main thread).
     previous = signal.signal(signal.SIGTERM, terminate) if main_thread else None
+    bar = Bar(round(cfg.mission.duration_s / cfg.control.period_s), "cikan mission (ROS graph)", "steps",
+              progress).start()
+    bar.update(0, note="starting the nodes")
     try:
         graph.start(n.name for n in NODES)
         if on_started is not None:
             on_started(graph)
         sim = graph.procs["sim"]
+        looked = 0.0
         while sim.poll() is None and failure is None:
             for name, proc in graph.procs.items():
                 rc = proc.poll()
                 if name != "sim" and rc is not None and rc > 0:
                     failure = exited(name, rc)
                     break
-            if time.perf_counter() - wall0 > timeout_s:
+            now = time.perf_counter()
+            if now - wall0 > timeout_s:
                 failure = f"mission did not finish within {timeout_s:g} s (wall)"
+            if bar.show and now - looked >= PROGRESS_PERIOD_S:
+                looked = now
+                steps = recorded_steps_so_far(bag_path)
+                if steps:
+                    bar.update(steps, note="")
             time.sleep(0.05)
         if failure is None and sim.returncode != 0:
             failure = exited("sim", sim.returncode)
     finally:
+        bar.update(bar.completed, note="stopping the nodes")
         graph.stop_all()
+        if bar.show:
+            bar.update(recorded_steps_so_far(bag_path), note="")
+        bar.close()
         lease.release()
         if main_thread:
             signal.signal(signal.SIGTERM, previous)
@@ -282,7 +317,8 @@ def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | Non
         elif failure is None:   # success, or interrupted (the bag is closed, the logs go)
             shutil.rmtree(workdir, ignore_errors=True)
     if failure is not None:
-        kept = "removed the empty bag" if discard_empty_bag(bag_path) else f"bag kept in {bag_path}"
+        kept = ("no bag was written" if not bag_path.exists() else
+                "removed the empty bag" if discard_empty_bag(bag_path) else f"bag kept in {bag_path}")
         raise (CikanError if bad_input else MissionError)(f"{failure} ({kept}; node logs in {workdir})")
     wall = time.perf_counter() - wall0
     rc = graph.procs["recorder"].returncode

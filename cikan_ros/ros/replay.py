@@ -131,8 +131,8 @@ def replay(bag: str | os.PathLike, rate: float = 1.0, fast: bool = False,
     from mcap.reader import make_reader
     from rclpy.duration import Duration
     from rosgraph_msgs.msg import Clock
-    from tqdm import tqdm
 
+    from ..progress import Bar
     from .convert import clock_msg
 
     say = say or (lambda text: print(f"cikan replay: {text}", file=sys.stderr, flush=True))
@@ -179,8 +179,7 @@ def replay(bag: str | os.PathLike, rate: float = 1.0, fast: bool = False,
                 lossy = best_effort_readers(node, list(by_topic))
                 if lossy:
                     say("--fast: best-effort readers may lose messages: " + "; ".join(lossy))
-            bar = tqdm(total=total, unit="msg", desc="replay", disable=not progress, file=sys.stderr,
-                       mininterval=0.5)
+            bar = Bar(total, "cikan replay", "messages", progress).start()
             start_wall = time.monotonic()
             first: int | None = None
             last_clock = None
@@ -198,7 +197,7 @@ def replay(bag: str | os.PathLike, rate: float = 1.0, fast: bool = False,
                         last_clock = message.log_time
                     pubs[channel.id].publish(message.data)
                     counts[channel.topic] += 1
-                    bar.update()
+                    bar.advance()
             except McapError as exc:
                 raise CikanError(f"{path}: unreadable after {sum(counts.values())} messages ({exc})") \
                     from None
