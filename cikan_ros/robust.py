@@ -49,8 +49,9 @@ from .orbit import KeplerOrbit, elements_to_state
 # Layout of the packed robustness parameters (``Predictor.rparams``).
 (R_ON, R_LAM, R_C0PP, R_C0PV, R_C0VP, R_C0VV, R_DPP, R_DPV, R_CPE, R_DVP, R_DVV, R_CVE, R_KP, R_KV,
  R_NPF, R_NPG, R_NVF, R_NVG, R_EPSU, R_DMAX, R_KG, R_SINA, R_ZETA, R_GRAD, R_GPP, R_GPV, R_GVP,
- R_GVV, R_NRATE, R_HPP, R_HPV, R_HVP, R_HVV, R_EPP, R_EPV, R_EVP, R_EVV) = range(37)
-N_RPARAMS = 37
+ R_GVV, R_NRATE, R_HPP, R_HPV, R_HVP, R_HVV, R_EPP, R_EPV, R_EVP, R_EVV, R_NJUMP, R_CNPP, R_CNPV,
+ R_CNVP, R_CNVV) = range(42)
+N_RPARAMS = 42
 
 #: Powers of the closed-loop matrix scanned for the constants C (lam^200 < 1e-11 here).
 N_POWERS = 200
@@ -85,7 +86,7 @@ def tube_constants(orbit: KeplerOrbit, cfg: ControlConfig, bias: float = 0.0,
     table = gain_table(orbit, cfg)
     n_cells = table.shape[0] - 1
     stride = max(1, round(ANALYSIS_STEP_DEG / cfg.grid_deg))
-    keys = ("lam", "kp", "kv") + tuple(f"{c}{row}{col}" for c in ("c0", "g", "d", "h", "e")
+    keys = ("lam", "kp", "kv") + tuple(f"{c}{row}{col}" for c in ("c0", "g", "d", "h", "e", "cn")
                                         for row in "pv" for col in "pv") + ("cpe", "cve")
     out = {k: 0.0 for k in keys}
     systems = []
@@ -134,6 +135,9 @@ def tube_constants(orbit: KeplerOrbit, cfg: ControlConfig, bias: float = 0.0,
                 worst(f"g{row}{col}", float(np.linalg.norm(rmat @ dc[:, cols], 2)))
                 worst(f"d{row}{col}", float(np.max(norms(rp_[1:] @ dc[:, cols]) * scale)))
                 worst(f"c0{row}{col}", float(np.max(norms(rp_[:-1][:, :, cols]) * scale)))
+                # the loop's response to the navigation error itself (not its changes), for an
+                # error that may jump anywhere in its bound at every sample (truth.nav_model filter)
+                worst(f"cn{row}{col}", float(np.max(norms(rp_[:-1] @ bmk[:, cols]) * scale)))
             worst(f"c{row}e", float(np.max(norms(rp_[:-1] @ b_d) * scale)))
             if nominal:  # the prediction's own loop: how far its transient can carry it
                 for col, cols in (("p", slice(0, 3)), ("v", slice(3, 6))):
@@ -174,7 +178,17 @@ def robust_params(cfg: Config, orbit: KeplerOrbit) -> NDArray:
                       ("hpp", R_HPP), ("hpv", R_HPV), ("hvp", R_HVP), ("hvv", R_HVV),
                       ("epp", R_EPP), ("epv", R_EPV), ("evp", R_EVP), ("evv", R_EVV)):
         rp[idx] = tc[name]
-    rp[R_NRATE] = truth.nav_rate_per_s
+    if truth.nav_model == "realistic":  # a smooth filter output: moves by nav_rate_per_s
+        rp[R_NRATE] = truth.nav_rate_per_s
+    else:
+        # An error that jumps at its measurement updates (filter) may move by its whole
+        # diameter within a sample, and where the updates fall against Verify's samples is not
+        # known: the tube bounds the loop's response to the error itself, C_n b per sample, with
+        # no offset taken out (tube_step_jump), and nav_terms' change bound is the diameter, 2 b.
+        rp[R_NJUMP] = 1.0
+        rp[R_NRATE] = math.inf
+        for name, idx in (("cnpp", R_CNPP), ("cnpv", R_CNPV), ("cnvp", R_CNVP), ("cnvv", R_CNVV)):
+            rp[idx] = tc[name]
     rp[R_NPF] = truth.bound("nav_pos_floor_km")
     rp[R_NPG] = truth.bound("nav_pos_range_fraction")
     rp[R_NVF] = truth.bound("nav_vel_floor_kmps")
@@ -242,6 +256,35 @@ def loop_takes_over(rp: NDArray, big_r: float, big_s: float) -> tuple[float, flo
 
 
 @nb.njit(cache=True)
+def tube_step_jump(rp: NDArray, u_max: float, ts: float, rng: float, vrel: float, rho: float,
+                   sig: float, big_r: float, big_s: float, linear: bool, a_n: float, un: float,
+                   grad: float) -> tuple[float, float, float, float, bool]:
+    """:func:`tube_step` for a navigation error that may jump anywhere in its bound at every
+    sample (``truth.nav_model`` filter): no offset is taken out (a jumping error has no steady
+    part to cancel), R, S bound the whole error, and the loop's response to the error itself
+    drives them: R' = lam R + C_n (b_p, b_v) + C_e eta (C_n_XY = max_m |X Phi^m B M K Y| /
+    lam^m); saturated, the error and its jump turn the thrust."""
+    rr = rng + rho
+    bp, bv, dp, dv = nav_terms(rp, rr, vrel + sig, ts)
+    m = rp[R_KP] * (big_r + bp) + rp[R_KV] * (big_s + bv)
+    eta = rp[R_EPSU] * un + rp[R_DMAX] + rp[R_KG] * rr
+    if a_n - m < u_max:
+        if not linear:  # R, S held the saturated phase's error: the loop now takes it over
+            big_r, big_s = loop_takes_over(rp, big_r, big_s)
+        lam = rp[R_LAM]
+        big_r = lam * big_r + rp[R_CNPP] * bp + rp[R_CNPV] * bv + rp[R_CPE] * eta
+        big_s = lam * big_s + rp[R_CNVP] * bp + rp[R_CNVV] * bv + rp[R_CVE] * eta
+        du = 2.0 * u_max + eta + grad * rho
+        big_r = min(big_r, rho + ts * sig + 0.5 * ts * ts * du)
+        big_s = min(big_s, sig + ts * du)
+        return big_r, big_s, big_r, big_s, True
+    du = u_max * (rp[R_KP] * (bp + dp) + rp[R_KV] * (bv + dv)) / (a_n - m) + eta + grad * rho
+    big_r = big_r + ts * big_s + 0.5 * ts * ts * du
+    big_s = big_s + ts * du
+    return big_r, big_s, big_r, big_s, False
+
+
+@nb.njit(cache=True)
 def tube_step(rp: NDArray, u_max: float, ts: float, rng: float, vrel: float, rho: float,
               sig: float, big_r: float, big_s: float, linear: bool, a_n: float, un: float,
               grad: float) -> tuple[float, float, float, float, bool]:
@@ -264,7 +307,10 @@ def tube_step(rp: NDArray, u_max: float, ts: float, rng: float, vrel: float, rho
       causes, (|K_p| b_p + |K_v| b_v) u_max / max(a_n - m, u_max), and the gravity gradient's
       bound g rho.
     docs/robustness.md states which of these steps are bounds and which approximations.
+    A navigation error that jumps (``truth.nav_model`` filter): :func:`tube_step_jump`.
     """
+    if rp[R_NJUMP] != 0.0:
+        return tube_step_jump(rp, u_max, ts, rng, vrel, rho, sig, big_r, big_s, linear, a_n, un, grad)
     rr = rng + rho
     bp, bv, dp, dv = nav_terms(rp, rr, vrel + sig, ts)
     # The truth's command differs from the prediction's by K (e + delta): the transient R, S,
@@ -332,10 +378,14 @@ def robust_terminal_ok(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, dp: f
         rr = rng + big_p + rho
         bp, bv, d_p, d_v = nav_terms(rp, rr, vel + big_v + sig, ts)
         eta = rp[R_EPSU] * un + rp[R_DMAX] + rp[R_KG] * rr
-        new_r = max(big_r, gain * (rp[R_DPP] * d_p + rp[R_DPV] * d_v + rp[R_CPE] * eta)) \
-            + rp[R_GPP] * bp + rp[R_GPV] * bv
-        new_s = max(big_s, gain * (rp[R_DVP] * d_p + rp[R_DVV] * d_v + rp[R_CVE] * eta)) \
-            + rp[R_GVP] * bp + rp[R_GVV] * bv
+        if rp[R_NJUMP] != 0.0:  # a jumping error: its response, no offset (tube_step_jump)
+            new_r = max(big_r, gain * (rp[R_CNPP] * bp + rp[R_CNPV] * bv + rp[R_CPE] * eta))
+            new_s = max(big_s, gain * (rp[R_CNVP] * bp + rp[R_CNVV] * bv + rp[R_CVE] * eta))
+        else:
+            new_r = max(big_r, gain * (rp[R_DPP] * d_p + rp[R_DPV] * d_v + rp[R_CPE] * eta)) \
+                + rp[R_GPP] * bp + rp[R_GPV] * bv
+            new_s = max(big_s, gain * (rp[R_DVP] * d_p + rp[R_DVV] * d_v + rp[R_CVE] * eta)) \
+                + rp[R_GVP] * bp + rp[R_GVV] * bv
         settled = new_r - rho <= 1e-12 and new_s - sig <= 1e-15  # 1 nm, 1 pm/s
         rho, sig = new_r, new_s
         if settled:
@@ -353,6 +403,8 @@ def tube_start(rp: NDArray, rng: float) -> tuple[float, float, float, float]:
     -(I - G) delta. Returns (rho, sigma, R, S) in km and km/s."""
     rho = rp[R_NPF] + rp[R_NPG] * rng
     sig = rp[R_NVF] + rp[R_NVG] * rng
+    if rp[R_NJUMP] != 0.0:  # the whole error -delta_0 (tube_step_jump; the first step's C0 takes it over)
+        return rho, sig, rho, sig
     big_r = rp[R_HPP] * rho + rp[R_HPV] * sig
     big_s = rp[R_HVP] * rho + rp[R_HVV] * sig
     return rho, sig, big_r, big_s

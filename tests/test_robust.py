@@ -81,6 +81,52 @@ def test_tube_recursion_bounds_the_linear_error_system(seed, nu, which):
         assert np.linalg.norm(e[3:]) <= big_s + c["gvp"] * bp + c["gvv"] * bv
 
 
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 2**31), nu=st.floats(0.0, 2.0 * math.pi),
+       which=st.integers(0, len(thrust_matrices(0.02, math.radians(1.0))) - 1))
+def test_tube_recursion_bounds_a_navigation_error_that_jumps(seed, nu, which):
+    """truth.nav_model filter: delta jumps anywhere in its bound at every step (the worst a
+    filter's measurement updates can do, here to a random corner of the box at each step). The
+    recursion of cikan_ros.robust.tube_step_jump (linear branch), R' = lam R + C_n b + C_e h from
+    the whole initial error -delta_0 taken over by C0, bounds |P e_j| and |V e_j|."""
+    bias, point = 0.02, math.radians(1.0)
+    c = tube_constants(ORBIT, CFG.control, bias, point)
+    m = thrust_matrices(bias, point)[which]
+    phi, b_d, k = loop_at(nu, m)
+    rng = np.random.default_rng(seed)
+    bp, bv, h = 1e-3, 1e-5, 1e-7
+    box = np.array([bp] * 3 + [bv] * 3) / math.sqrt(3)
+    delta = rng.choice([-1.0, 1.0], 6) * box
+    e = -delta.copy()
+    big_r = c["c0pp"] * bp + c["c0pv"] * bv
+    big_s = c["c0vp"] * bp + c["c0vv"] * bv
+    for _ in range(150):
+        eta = rng.normal(size=3)
+        eta *= h / np.linalg.norm(eta)
+        e = phi @ e - b_d @ m @ k @ delta + b_d @ eta
+        delta = rng.choice([-1.0, 1.0], 6) * box
+        big_r = c["lam"] * big_r + c["cnpp"] * bp + c["cnpv"] * bv + c["cpe"] * h
+        big_s = c["lam"] * big_s + c["cnvp"] * bp + c["cnvv"] * bv + c["cve"] * h
+        assert np.linalg.norm(e[:3]) <= big_r
+        assert np.linalg.norm(e[3:]) <= big_s
+
+
+def test_robust_verify_docks_with_a_navigation_error_that_jumps():
+    """Under truth.nav_model filter robust Verify's tube takes the jumps (C_n, no offset): a
+    start flies with 0 violations and tau reaches 0 (the terminal ball fits the apex radius;
+    with the smooth model's D terms and a 2 b change per sample it did not: 0.84 m)."""
+    from cikan_ros.mission import run_mission, sample_start
+    from cikan_ros.registry import make_governor
+
+    flat = truth_overrides("realistic")
+    flat.update({"tsg.robust": True, "truth.nav_model": "filter"})
+    cfg = load_config(**flat)
+    gov = make_governor("conventional", cfg)
+    m = run_mission(gov, sample_start(gov.predictor, 3), 3).metrics()
+    assert m["violations"] == 0 and m["violations_between"] == 0
+    assert m["t_tau_zero_s"] is not None
+
+
 def test_thruster_errors_beyond_the_gain_margin_are_refused():
     lam = {b: tube_constants(ORBIT, CFG.control, b, 0.0)["lam"] for b in (0.0, 0.02)}
     assert lam[0.0] < lam[0.02] < 1.0
