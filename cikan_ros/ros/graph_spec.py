@@ -33,6 +33,10 @@ TRUTH_ACCEL = "/truth/deputy/accel"
 #: (diagnostic_msgs/DiagnosticStatus, name = peer, message "ready", hardware_id = node name;
 #: latched). The simulator starts the lockstep once every peer of ``graph.peers`` is ready.
 READY = "/graph/ready"
+#: The telemetry of each control step (the dictionary of :mod:`cikan_ros.telemetry`: name[i] the
+#: key, position[i] the value in its unit) and the scene in the chief's LVLH frame (markers).
+TELEMETRY = "/telemetry"
+SCENE_MARKERS = "/scene/markers"
 
 #: /tsg/time_shift source when no decision was made at this step: the last verified shift holds.
 PATH_HOLD = "hold"
