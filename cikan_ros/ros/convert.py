@@ -297,13 +297,26 @@ def markers_msg(shapes: list[Shape], stamp_ns: int) -> MarkerArray:
 
 
 # -- raw CDR ------------------------------------------------------------------------------------
-def cdr_stamp_ns(data: bytes) -> int:
-    """Stamp of a serialised message whose first field is a Time (a Header or rosgraph Clock).
+#: Types whose serialised form starts with a sequence of stamped messages (not a Time): their
+#: stamp is the first element's (CDR: the uint32 length, then that element's header).
+_SEQUENCE_FIRST = {"visualization_msgs/msg/MarkerArray"}
 
-    CDR: 4-byte encapsulation header (byte 1 = 0x01 little-endian), then int32 sec, uint32 nanosec.
+
+def cdr_stamp_ns(data: bytes, type_name: str = "") -> int:
+    """Stamp of a serialised message whose first field is a Time (a Header or rosgraph Clock), or,
+    for a type of :data:`_SEQUENCE_FIRST` (``type_name``), of its first element.
+
+    CDR: 4-byte encapsulation header (byte 1 = 0x01 little-endian), then int32 sec, uint32 nanosec
+    (after the uint32 sequence length for a sequence; MessageError when it is empty).
     """
-    if len(data) < 12:
+    offset = 4
+    fmt_len = "<I" if len(data) > 1 and data[1] & 1 else ">I"
+    if type_name in _SEQUENCE_FIRST:
+        if len(data) < 8 or struct.unpack_from(fmt_len, data, 4)[0] == 0:
+            raise MessageError(f"serialised {type_name} has no element to take a stamp from")
+        offset = 8
+    if len(data) < offset + 8:
         raise MessageError(f"serialised message of {len(data)} bytes is too short for a stamp")
     fmt = "<iI" if data[1] & 1 else ">iI"
-    sec, nsec = struct.unpack_from(fmt, data, 4)
+    sec, nsec = struct.unpack_from(fmt, data, offset)
     return sec * NS_PER_S + nsec

@@ -1,8 +1,9 @@
 """recorder_node: records the topics of ``recorder.topics`` (default: every topic of the graph), as
 received (raw CDR), to a rosbag2 MCAP bag.
 
-Messages are logged at their own stamp (header.stamp, or the Clock's time): the bag is a
-sim-time record in which the messages of step k share t_k, whatever their arrival order.
+Messages are logged at their own stamp (header.stamp, the Clock's time, or a MarkerArray's first
+marker's): the bag is a sim-time record in which the messages of step k share t_k, whatever
+their arrival order.
 Chunks are flushed every ``recorder.flush_period_s`` (wall) or ``recorder.chunk_bytes``, so a
 crash loses at most the chunk in progress (see :mod:`cikan_ros.ros.bag_writer`). SIGINT/SIGTERM: the
 recorder keeps taking messages until none came for ``recorder.drain_s`` (at most
@@ -116,7 +117,7 @@ class RecorderNode(Node):
             qos = [qos_dict(info.qos_profile) for info in self.get_publishers_info_by_topic(topic)]
             self.bag.add_topic(topic, TOPIC_TYPES[topic], qos)
         try:
-            stamp = cv.cdr_stamp_ns(data)
+            stamp = cv.cdr_stamp_ns(data, TOPIC_TYPES[topic])
         except cv.MessageError:
             stamp = time.time_ns()
         self.bag.write(topic, data, stamp)
