@@ -54,12 +54,27 @@ def relative_lvlh(x_d: ArrayLike, x_c: ArrayLike) -> tuple[NDArray, NDArray]:
     return out[:, :3], out[:, 3:]
 
 
+@nb.njit(cache=True)
+def port_axis_kernel(x_c: NDArray, side: float, out: NDArray) -> None:
+    """Row-wise (N, 6) -> out (N, 3): :func:`port_axis_lvlh` compiled."""
+    for k in range(x_c.shape[0]):
+        r = x_c[k, :3]
+        v = x_c[k, 3:]
+        rv = math.sqrt(r @ r) * math.sqrt(v @ v)
+        h = np.cross(r, v)
+        # R v = (r.v/|r|, |r x v|/|r|, 0): v has no orbit-normal part
+        out[k, 0] = side * (r @ v) / rv
+        out[k, 1] = side * math.sqrt(h @ h) / rv
+        out[k, 2] = 0.0
+
+
 def port_axis_lvlh(x_c: ArrayLike, side: Side) -> NDArray:
-    """Unit axis (..., 3) of the docking port and the line-of-sight cone in LVLH: side * v_c/|v_c|
-    (the deputy approaches along it, from ``side``)."""
-    x_c = np.asarray(x_c, dtype=float)
-    v = x_c[..., 3:] / np.linalg.norm(x_c[..., 3:], axis=-1, keepdims=True)
-    return float(Side(side)) * np.einsum("...ij,...j->...i", lvlh_frame(x_c), v)
+    """Unit axis (N, 3) of the docking port and the line-of-sight cone in LVLH, for chief states
+    (N, 6) or (6,): side * v_c/|v_c| (the deputy approaches along it, from ``side``)."""
+    x_c = np.ascontiguousarray(np.atleast_2d(x_c), dtype=float)
+    out = np.empty((x_c.shape[0], 3))
+    port_axis_kernel(x_c, float(Side(side)), out)
+    return out
 
 
 def _normal_pair(axis: NDArray) -> tuple[NDArray, NDArray]:
@@ -70,7 +85,7 @@ def _normal_pair(axis: NDArray) -> tuple[NDArray, NDArray]:
     return e1, np.cross(axis, e1)
 
 
-def cone_rim(axis: ArrayLike, half_angle_deg: float, length_km: float, n: int = 48) -> NDArray:
+def cone_rim(axis: ArrayLike, half_angle_deg: float, length_km: float, n: int = 32) -> NDArray:
     """(n, 3) points of the cone's rim circle at ``length_km`` along ``axis`` (3,), apex at the
     origin (the port): every point sits at ``half_angle_deg`` from the axis (h1 = 0)."""
     axis = np.asarray(axis, dtype=float)
@@ -81,7 +96,7 @@ def cone_rim(axis: ArrayLike, half_angle_deg: float, length_km: float, n: int = 
     return length_km * axis + radius * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2)
 
 
-def cone_triangles(axis: ArrayLike, half_angle_deg: float, length_km: float, n: int = 48) -> NDArray:
+def cone_triangles(axis: ArrayLike, half_angle_deg: float, length_km: float, n: int = 32) -> NDArray:
     """(3 n, 3) vertices of the cone's mantle as a triangle list (apex, rim i, rim i+1)."""
     rim = cone_rim(axis, half_angle_deg, length_km, n)
     nxt = np.roll(rim, -1, axis=0)
@@ -127,7 +142,6 @@ class SceneBuilder:
     def __init__(self, cfg: Config, path_every: int, turn_deg: float = 1.0) -> None:
         c = cfg.constraints
         self.half_angle_deg = c.los_half_angle_deg
-        self.side = cfg.side
         #: The cone is drawn out to 1.2 x the nominal start distance (or gamma1, if larger).
         self.cone_length_km = 1.2 * max(cfg.mission.nominal_distance_km, c.gamma1_km)
         self.sphere_radius_km = c.gamma1_km
@@ -136,13 +150,12 @@ class SceneBuilder:
         self.axis: NDArray | None = None
         self.path: list[NDArray] = []
 
-    def constraints(self, x_c: ArrayLike, force: bool = False) -> list[Shape] | None:
-        """Cone, port and sphere, when first asked, when ``force``d or when the port axis has
-        turned (else None)."""
-        axis = port_axis_lvlh(x_c, self.side)
+    def constraints(self, axis: NDArray, force: bool = False) -> list[Shape] | None:
+        """Cone, port and sphere about the port ``axis`` (LVLH, :func:`port_axis_lvlh` of the chief
+        now), when first asked, when ``force``d or when the axis has turned (else None)."""
         if not force and self.axis is not None and float(axis @ self.axis) >= self.cos_turn:
             return None
-        self.axis = axis
+        self.axis = np.array(axis, dtype=float)  # a copy: the caller may reuse its buffer
         port_len = 0.05 * self.cone_length_km
         origin = np.zeros((1, 3))
         return [Shape("cone", 0, "triangle_list", cone_triangles(axis, self.half_angle_deg, self.cone_length_km),

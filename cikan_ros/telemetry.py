@@ -37,6 +37,8 @@ VERSION = 1
 TELEMETRY_TOPIC = TELEMETRY
 #: How many values a step has (the points of :func:`dictionary`).
 N_VALUES = 15
+#: The columns of the relative position in LVLH (p_x, p_y, p_z) among the values.
+P_LVLH = slice(9, 12)
 #: The frame of relative positions and velocities (the chief's LVLH, :mod:`cikan_ros.scene`).
 FRAME_LVLH = "lvlh"
 

@@ -19,7 +19,7 @@ from cikan_ros.ros.bag_writer import BagWriter, qos_dict, schema_text, type_hash
 from cikan_ros.ros.graph import QOS_PROFILES, QOS_STREAM, qos_for
 from cikan_ros.ros.graph_spec import QOS_KINDS, TOPICS
 from cikan_ros.ros.params import declare_config, parameter_descriptions
-from cikan_ros.scene import SceneBuilder
+from cikan_ros.scene import SceneBuilder, port_axis_lvlh
 from cikan_ros.units import ns_to_seconds, seconds_to_ns, through_si
 from ros_helpers import ros_env
 
@@ -125,10 +125,30 @@ def test_scene_and_telemetry_messages() -> None:
     (deputy,) = cv.markers_msg(builder.moving(np.array([1.0, -2.0, 0.5]), None), 7).markers
     assert deputy.header.frame_id == "lvlh" and deputy.type == Marker.SPHERE and cv.time_to_ns(deputy.header.stamp) == 7
     assert (deputy.pose.position.x, deputy.pose.position.y, deputy.pose.position.z) == (1000.0, -2000.0, 500.0)
-    cone, port, sphere = cv.markers_msg(builder.constraints(X), 7).markers
+    cone, port, sphere = cv.markers_msg(builder.constraints(port_axis_lvlh(X, Side.BEHIND)[0]), 7).markers
     assert cone.type == Marker.TRIANGLE_LIST and len(cone.points) % 3 == 0
     assert sphere.scale.x == pytest.approx(2 * cfg.constraints.gamma1_km * 1e3)
     assert port.type == Marker.ARROW and len(port.points) == 2
+    # the simulator's reusing maker gives the same messages as fresh ones, a growing path included
+    stream = cv.MarkerStream()
+    for k in range(13):
+        shapes = builder.moving(np.array([k, 1.0, 2.0]), np.array([0.0, -k, 0.0]))
+        trail = builder.trail(k, np.array([1.0 + k, 2.0 * k, 0.5]), last=k == 12)
+        shapes += [trail] if trail is not None else []
+        assert stream(shapes, 100 + k) == cv.markers_msg(shapes, 100 + k)
+    # a step of the simulator's stream: the target where the scene's geometry puts it
+    from cikan_ros.ros.scene_stream import SceneStream
+    from cikan_ros.scene import virtual_target_lvlh
+    from cikan_ros.tsg import Predictor
+
+    pred = Predictor.from_config(cfg)
+    x_c = pred.orbit.state(500.0)
+    x_d = pred.orbit.state(400.0)
+    (_, telemetry), (_, arr), *_ = SceneStream(cfg, pred).step(50, 123, 500.0, x_c, x_d, np.zeros(3), -60.0)
+    target = [m for m in arr.markers if m.ns == "target"][0].pose.position
+    np.testing.assert_allclose([target.x, target.y, target.z],
+                               virtual_target_lvlh(pred.orbit, x_c, 500.0, -60.0)[:3] * 1e3, rtol=1e-12)
+    assert dict(zip(telemetry.name, telemetry.position))["tau"] == -60.0
     msg = cv.telemetry_msg(["a", "b"], [1.5, float("nan")], 9)
     assert list(msg.name) == ["a", "b"] and msg.position[0] == 1.5 and np.isnan(msg.position[1])
 

@@ -52,7 +52,7 @@ def test_cone_vertices_lie_on_h1_zero(side: Side) -> None:
     for t in TIMES[::4]:
         x_c = ORBIT.state(t)
         rot = lvlh_frame(x_c)
-        axis = port_axis_lvlh(x_c, side)
+        axis = port_axis_lvlh(x_c, side)[0]
         rim = cone_rim(axis, CFG.constraints.los_half_angle_deg, 50.0)
         pts = np.vstack([rim, 50.0 * axis, -50.0 * axis])
         x_d = np.tile(x_c, (len(pts), 1))
@@ -67,8 +67,8 @@ def test_cone_vertices_lie_on_h1_zero(side: Side) -> None:
 
 def test_port_axis_points_against_the_velocity_behind_and_along_it_ahead() -> None:
     x_c = ORBIT.state(0.0)
-    np.testing.assert_allclose(port_axis_lvlh(x_c, Side.BEHIND), [0.0, -1.0, 0.0], atol=1e-12)
-    np.testing.assert_allclose(port_axis_lvlh(x_c, Side.AHEAD), [0.0, 1.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(port_axis_lvlh(x_c, Side.BEHIND)[0], [0.0, -1.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(port_axis_lvlh(x_c, Side.AHEAD)[0], [0.0, 1.0, 0.0], atol=1e-12)
 
 
 def test_relative_velocity_is_the_rate_in_the_rotating_frame() -> None:
@@ -93,9 +93,9 @@ def test_virtual_target_is_the_chief_orbit_tau_away() -> None:
 
 def test_builder_sends_the_constraints_when_the_axis_turned_and_decimates_the_path() -> None:
     b = SceneBuilder(CFG, path_every=6)
-    assert b.constraints(ORBIT.state(0.0)) is not None
-    assert b.constraints(ORBIT.state(10.0)) is None          # near periapsis the axis turns slowly
-    turned = [t for t in np.arange(20.0, 3000.0, 10.0) if b.constraints(ORBIT.state(t)) is not None]
+    assert b.constraints(port_axis_lvlh(ORBIT.state(0.0), Side.BEHIND)[0]) is not None
+    assert b.constraints(port_axis_lvlh(ORBIT.state(10.0), Side.BEHIND)[0]) is None          # near periapsis the axis turns slowly
+    turned = [t for t in np.arange(20.0, 3000.0, 10.0) if b.constraints(port_axis_lvlh(ORBIT.state(t), Side.BEHIND)[0]) is not None]
     assert turned    # the flight-path angle grows after periapsis: the cone turns in LVLH
     trails = [b.trail(k, np.array([float(k), 0.0, 0.0]), last=(k == 20)) for k in range(21)]
     assert [k for k, s in enumerate(trails) if s is not None] == [0, 6, 12, 18, 20]

@@ -43,22 +43,25 @@ from ..mission import MissionResult, Schedule, audit_shifts
 from ..tsg import Predictor
 from ..units import m_to_km
 from .convert import MessageError, Timeline, accel_from_msg, diagnostic_values, floats, shift_from_msg, time_to_ns
-from .graph_spec import (ACCEL_CMD, CHIEF_ODOM, CLOCK, DEPUTY_ODOM, DIAGNOSTICS, TIME_SHIFT, TRUTH_ACCEL,
-                         TRUTH_CHIEF, TRUTH_DEPUTY)
+from .graph_spec import (ACCEL_CMD, CHIEF_ODOM, CLOCK, DEPUTY_ODOM, DIAGNOSTICS, SCENE_TOPICS, TIME_SHIFT,
+                         TRUTH_ACCEL, TRUTH_CHIEF, TRUTH_DEPUTY)
 
 
 #: Integer values of the simulator's summary record.
 _COUNTS = ("k", "steps", "deadline_misses", "rejected", "controller_holds")
 
 
-def read_bag(path: str | Path) -> dict[str, list[tuple[int, Any]]]:
-    """Every message of a bag, decoded by rosbags, as ``{topic: [(log_time_ns, msg), ...]}``."""
+def read_bag(path: str | Path, scene: bool = False) -> dict[str, list[tuple[int, Any]]]:
+    """Every message of a bag, decoded by rosbags, as ``{topic: [(log_time_ns, msg), ...]}``; the
+    telemetry and scene topics (:data:`~cikan_ros.ros.graph_spec.SCENE_TOPICS`, derived from the
+    others and more than half the decoding time) only with ``scene``."""
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
     out: dict[str, list[tuple[int, Any]]] = {}
     with AnyReader([Path(path)], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
-        for conn, t, raw in reader.messages():
+        conns = [c for c in reader.connections if scene or c.topic not in SCENE_TOPICS]
+        for conn, t, raw in reader.messages(connections=conns):
             out.setdefault(conn.topic, []).append((t, reader.deserialize(raw, conn.msgtype)))
     return out
 

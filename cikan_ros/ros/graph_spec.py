@@ -44,6 +44,9 @@ TELEMETRY = "/telemetry"
 SCENE_MARKERS = "/scene/markers"
 SCENE_PATH = "/scene/path"
 SCENE_CONSTRAINTS = "/scene/constraints"
+#: The telemetry and scene topics, in the order the simulator publishes them at a step: derived
+#: from the states, thrust and shifts (``cikan scene`` rebuilds them from those).
+SCENE_TOPICS = (TELEMETRY, SCENE_MARKERS, SCENE_PATH, SCENE_CONSTRAINTS)
 
 #: /tsg/time_shift source when no decision was made at this step: the last verified shift holds.
 PATH_HOLD = "hold"

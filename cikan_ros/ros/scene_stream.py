@@ -14,19 +14,19 @@ import math
 from pathlib import Path
 from typing import Any, Iterator
 
+import numpy as np
 from numpy.typing import NDArray
 
 from ..config import Config
 from ..errors import CikanError
-from ..scene import SceneBuilder, relative_lvlh, virtual_target_lvlh
-from ..telemetry import keys, values
+from ..constraints import constraint_params
+from ..scene import SceneBuilder, port_axis_kernel, relative_lvlh_kernel
+from ..telemetry import P_LVLH, keys, values_kernel
+from ..units import KM
 from ..tsg import ChiefAnchor, Predictor
 from . import convert as cv
 from .convert import Timeline
-from .graph_spec import SCENE_CONSTRAINTS, SCENE_MARKERS, SCENE_PATH, TELEMETRY
-
-#: The topics a :class:`SceneStream` writes, in the order it writes them at a step.
-SCENE_TOPICS = (TELEMETRY, SCENE_MARKERS, SCENE_PATH, SCENE_CONSTRAINTS)
+from .graph_spec import SCENE_CONSTRAINTS, SCENE_MARKERS, SCENE_PATH, SCENE_TOPICS, TELEMETRY
 
 
 class SceneStream:
@@ -38,24 +38,39 @@ class SceneStream:
         self.anchor = ChiefAnchor(predictor)
         every = round(cfg.tsg.update_period_s / cfg.control.period_s)
         self.scene = SceneBuilder(cfg, path_every=every)
+        self.markers = cv.MarkerStream()
+        self.telemetry: Any = None
+        # The compiled kernels are called on one-row buffers: a step costs no array wrapping.
+        self.cparams = constraint_params(cfg.constraints, cfg.thrust_limit_kmps2, cfg.side)
+        self.side = float(cfg.side)
+        self.x_c, self.x_d, self.x_v = np.empty((1, 6)), np.empty((1, 6)), np.empty((1, 6))
+        self.u, self.tau = np.empty((1, 3)), np.empty(1)
+        self.row, self.rel, self.axis = np.empty((1, len(self.keys))), np.empty((1, 6)), np.empty((1, 3))
 
     def step(self, k: int, stamp_ns: int, t: float, x_c: NDArray, x_d: NDArray, u: NDArray, tau: float,
              last: bool = False) -> list[tuple[str, Any]]:
         """(topic, message) pairs of step k at time t (s since the epoch; tau NaN: no shift yet,
-        no virtual target); ``last``: the mission's last step (the path ends at it)."""
-        out: list[tuple[str, Any]] = [
-            (TELEMETRY, cv.telemetry_msg(self.keys, values(self.cfg, x_c, x_d, u, tau)[0], stamp_ns))]
-        p_d = relative_lvlh(x_d, x_c)[0][0]
-        p_v = None if math.isnan(tau) else virtual_target_lvlh(self.anchor(x_c, t).orbit, x_c, t, tau)[:3]
-        out.append((SCENE_MARKERS, cv.markers_msg(self.scene.moving(p_d, p_v), stamp_ns)))
+        no virtual target); ``last``: the mission's last step (the path ends at it). The messages
+        are reused from step to step: publish or serialise them before the next call."""
+        self.x_c[0], self.x_d[0], self.u[0], self.tau[0] = x_c, x_d, u, tau
+        values_kernel(self.x_c, self.x_d, self.u, self.tau, self.cparams, self.row)
+        self.telemetry = cv.telemetry_msg(self.keys, self.row[0], stamp_ns, self.telemetry)
+        out: list[tuple[str, Any]] = [(TELEMETRY, self.telemetry)]
+        p_d = self.row[0, P_LVLH] / KM
+        p_v = None
+        if not math.isnan(tau):
+            self.x_v[0] = self.anchor(x_c, t).orbit.state(t + tau)
+            relative_lvlh_kernel(self.x_v, self.x_c, self.rel)
+            p_v = self.rel[0, :3].copy()
+        out.append((SCENE_MARKERS, self.markers(self.scene.moving(p_d, p_v), stamp_ns)))
         trail = self.scene.trail(k, p_d, last)
         if trail is not None:
-            out.append((SCENE_PATH, cv.markers_msg([trail], stamp_ns)))
-        shapes = self.scene.constraints(x_c)
+            out.append((SCENE_PATH, self.markers([trail], stamp_ns)))
+        port_axis_kernel(self.x_c, self.side, self.axis)
+        shapes = self.scene.constraints(self.axis[0])
         if shapes is not None:
-            out.append((SCENE_CONSTRAINTS, cv.markers_msg(shapes, stamp_ns)))
+            out.append((SCENE_CONSTRAINTS, self.markers(shapes, stamp_ns)))
         return out
-
 
 
 def add_scene(src: str | Path, dst: str | Path) -> dict[str, int]:
