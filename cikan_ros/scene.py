@@ -121,9 +121,10 @@ COLORS = {"deputy": (0.2, 0.5, 1.0, 1.0), "target": (1.0, 0.55, 0.0, 1.0), "path
 @dataclass(frozen=True)
 class Shape:
     """One marker in LVLH (km): ``kind`` sphere (``points`` (1, 3) its centre, ``size`` its
-    diameter), line_strip (``size`` the line width), triangle_list, or arrow (two points: tail and
-    head; ``size`` the shaft diameter). ``ns``/``ident`` name it: a newer shape of the same name
-    replaces it in a viewer."""
+    diameter), sphere_list (a sphere of diameter ``size`` at each point, coloured by ``colors``),
+    line_strip (``size`` the line width), triangle_list, or arrow (two points: tail and head;
+    ``size`` the shaft diameter). ``ns``/``ident`` name it: a newer shape of the same name replaces
+    it in a viewer."""
 
     ns: str
     ident: int
@@ -131,6 +132,7 @@ class Shape:
     points: NDArray
     size: float
     color: tuple[float, float, float, float]
+    colors: tuple[tuple[float, float, float, float], ...] = ()
 
 
 class SceneBuilder:
@@ -165,15 +167,15 @@ class SceneBuilder:
                 Shape("approach_sphere", 0, "sphere", origin, 2.0 * self.sphere_radius_km, COLORS["sphere"])]
 
     def moving(self, p_d: ArrayLike, p_v: ArrayLike | None) -> list[Shape]:
-        """The deputy at p_d and the virtual target at p_v (LVLH, km; None: no shift yet), sized
+        """The deputy at p_d and the virtual target at p_v (LVLH, km; None: no shift yet) as one
+        sphere list (deputy first; one marker serialises in a third of the time of two), sized
         2 % of the range (at least 1 m) so both show at 100 km and at the port."""
         p_d = np.asarray(p_d, dtype=float)
         size = max(0.02 * float(np.linalg.norm(p_d)), 1e-3)
-        shapes = [Shape("deputy", 0, "sphere", p_d[None, :], size, COLORS["deputy"])]
-        if p_v is not None:
-            shapes.append(Shape("target", 0, "sphere", np.asarray(p_v, dtype=float)[None, :], size,
-                                COLORS["target"]))
-        return shapes
+        if p_v is None:
+            return [Shape("bodies", 0, "sphere_list", p_d[None, :], size, COLORS["deputy"], (COLORS["deputy"],))]
+        return [Shape("bodies", 0, "sphere_list", np.stack([p_d, np.asarray(p_v, dtype=float)]), size,
+                      COLORS["deputy"], (COLORS["deputy"], COLORS["target"]))]
 
     def trail(self, k: int, p_d: ArrayLike, last: bool = False) -> Shape | None:
         """The path so far as a line strip at every ``path_every``-th step k (and at the ``last``),

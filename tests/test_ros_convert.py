@@ -122,9 +122,10 @@ def test_scene_and_telemetry_messages() -> None:
 
     cfg = load_config()
     builder = SceneBuilder(cfg, 6)
-    (deputy,) = cv.markers_msg(builder.moving(np.array([1.0, -2.0, 0.5]), None), 7).markers
-    assert deputy.header.frame_id == "lvlh" and deputy.type == Marker.SPHERE and cv.time_to_ns(deputy.header.stamp) == 7
-    assert (deputy.pose.position.x, deputy.pose.position.y, deputy.pose.position.z) == (1000.0, -2000.0, 500.0)
+    (bodies,) = cv.markers_msg(builder.moving(np.array([1.0, -2.0, 0.5]), np.array([0.0, 3.0, 0.0])), 7).markers
+    assert bodies.header.frame_id == "lvlh" and bodies.type == Marker.SPHERE_LIST
+    assert cv.time_to_ns(bodies.header.stamp) == 7 and len(bodies.colors) == 2
+    assert [(p.x, p.y, p.z) for p in bodies.points] == [(1000.0, -2000.0, 500.0), (0.0, 3000.0, 0.0)]
     cone, port, sphere = cv.markers_msg(builder.constraints(port_axis_lvlh(X, Side.BEHIND)[0]), 7).markers
     assert cone.type == Marker.TRIANGLE_LIST and len(cone.points) % 3 == 0
     assert sphere.scale.x == pytest.approx(2 * cfg.constraints.gamma1_km * 1e3)
@@ -132,7 +133,7 @@ def test_scene_and_telemetry_messages() -> None:
     # the simulator's reusing maker gives the same messages as fresh ones, a growing path included
     stream = cv.MarkerStream()
     for k in range(13):
-        shapes = builder.moving(np.array([k, 1.0, 2.0]), np.array([0.0, -k, 0.0]))
+        shapes = builder.moving(np.array([k, 1.0, 2.0]), np.array([0.0, -k, 0.0]) if k else None)
         trail = builder.trail(k, np.array([1.0 + k, 2.0 * k, 0.5]), last=k == 12)
         shapes += [trail] if trail is not None else []
         assert stream(shapes, 100 + k) == cv.markers_msg(shapes, 100 + k)
@@ -145,7 +146,7 @@ def test_scene_and_telemetry_messages() -> None:
     x_c = pred.orbit.state(500.0)
     x_d = pred.orbit.state(400.0)
     (_, telemetry), (_, arr), *_ = SceneStream(cfg, pred).step(50, 123, 500.0, x_c, x_d, np.zeros(3), -60.0)
-    target = [m for m in arr.markers if m.ns == "target"][0].pose.position
+    target = arr.markers[0].points[1]
     np.testing.assert_allclose([target.x, target.y, target.z],
                                virtual_target_lvlh(pred.orbit, x_c, 500.0, -60.0)[:3] * 1e3, rtol=1e-12)
     assert dict(zip(telemetry.name, telemetry.position))["tau"] == -60.0

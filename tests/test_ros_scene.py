@@ -56,8 +56,8 @@ def test_rosbags_reads_the_scene_in_lvlh_stamped_on_the_step_grid(recorded: tupl
     _, x_c = states(msgs, "/truth/chief/odom")
     rot = lvlh_frame(x_c)
     expected = np.einsum("nij,nj->ni", rot, x_d[:, :3] - x_c[:, :3]) * 1e3
-    got = np.array([[(m.pose.position.x, m.pose.position.y, m.pose.position.z)
-                     for m in arr.markers if m.ns == "deputy"][0] for _, arr in msgs["/scene/markers"]])
+    got = np.array([[(m.points[0].x, m.points[0].y, m.points[0].z)
+                     for m in arr.markers if m.ns == "bodies"][0] for _, arr in msgs["/scene/markers"]])
     np.testing.assert_allclose(got, expected, rtol=1e-9, atol=1e-6)
     # the telemetry: tau as the governor published it (held at the end), the range from the truth
     keys = list(msgs["/telemetry"][0][1].name)

@@ -39,7 +39,7 @@ from ..paths import install_prefixes
 
 #: The name of the telemetry dictionary (:mod:`cikan_ros.telemetry`) in a bag: an MCAP metadata
 #: record of this name (keys ``format``, ``version``, ``json``: the document) and an MCAP attachment
-#: ``<name>.json`` (what Foxglove and the mcap tools show), and metadata.yaml custom_data
+#: ``<name>.json`` (what the mcap tools list), and metadata.yaml custom_data
 #: ``cikan_ros.telemetry`` (what rosbags reads).
 TELEMETRY_RECORD = "cikan_telemetry"
 TELEMETRY_CUSTOM_KEY = "cikan_ros.telemetry"

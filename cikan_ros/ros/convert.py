@@ -262,7 +262,7 @@ def telemetry_msg(keys: list[str], values: ArrayLike, stamp_ns: int, into: Joint
     return msg
 
 
-_MARKER_TYPES = {"sphere": Marker.SPHERE, "line_strip": Marker.LINE_STRIP,
+_MARKER_TYPES = {"sphere": Marker.SPHERE, "sphere_list": Marker.SPHERE_LIST, "line_strip": Marker.LINE_STRIP,
                  "triangle_list": Marker.TRIANGLE_LIST, "arrow": Marker.ARROW}
 
 
@@ -293,8 +293,12 @@ def _place(m: Marker, shape: Shape, stamp_ns: int, made: tuple[NDArray, list[Poi
         m.scale.x, m.scale.y, m.scale.z = size, 2.0 * size, 3.0 * size
     elif shape.kind == "line_strip":
         m.scale.x = size
+    elif shape.kind == "sphere_list":
+        m.scale.x = m.scale.y = m.scale.z = size
     else:
         m.scale.x = m.scale.y = m.scale.z = 1.0
+    if len(m.colors) != len(shape.colors):
+        m.colors = [ColorRGBA(r=c[0], g=c[1], b=c[2], a=c[3]) for c in shape.colors]
     old, points = made
     keep = len(old) if len(old) <= len(pts) and np.array_equal(old, pts[:len(old)]) else 0
     points = points[:keep] + [Point(x=float(p[0]), y=float(p[1]), z=float(p[2])) for p in pts[keep:].tolist()]
