@@ -28,13 +28,15 @@ def table(points: list, cfg) -> str:
     """A Markdown table of the points, headed by the configuration facts."""
     head = (f"telemetry of scenario {cfg.scenario.name}, approach {cfg.side.approach}, cone "
             f"{cfg.constraints.los_half_angle_deg:g}°; a margin <= 0 is within its limit\n\n"
-            "| key | name | unit | frame | low | high | topic field |\n|---|---|---|---|---|---|---|")
+            "| key | name | unit | frame | low | high | docked below | topic field |\n"
+            "|---|---|---|---|---|---|---|---|")
     rows = []
     cell = lambda text: str(text).replace("|", "\\|")  # noqa: E731 - a pipe inside a cell
     for p in points:
         high = _bound(p.limit_high) or (f"= {p.limit_key}" if p.limit_key else "")
         where = f"{p.topic} {p.field}" if p.topic else ""
-        rows.append(f"| {p.key} | {cell(p.name)} | {p.unit} | {p.frame} | {_bound(p.limit_low)} | {high} | {where} |")
+        rows.append(f"| {p.key} | {cell(p.name)} | {p.unit} | {p.frame} | {_bound(p.limit_low)} | {high} | "
+                    f"{_bound(p.goal_high)} | {where} |")
     return "\n".join([head, *rows])
 
 
