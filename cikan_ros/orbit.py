@@ -1,4 +1,5 @@
-"""Two-body orbits: classical elements <-> Cartesian, analytic Kepler propagation, VNB frame.
+"""Two-body orbits: classical elements <-> Cartesian, analytic Kepler propagation, VNB and LVLH
+frames.
 
 Frames: Earth-centred inertial (ECI). Units: km, s, km/s, radians unless a name says ``deg``.
 The compiled kernels (``*_kernel``) take an orbit as the packed float64 array of
@@ -341,4 +342,20 @@ def vnb_frame(x_c: ArrayLike) -> NDArray:
     yh = np.cross(x_c[..., :3], xh)
     yh /= np.linalg.norm(yh, axis=-1, keepdims=True)
     zh = np.cross(xh, yh)
+    return np.stack([xh, yh, zh], axis=-2)
+
+
+def lvlh_frame(x_c: ArrayLike) -> NDArray:
+    """Rotation(s) ECI -> LVLH of the chief state(s) x_c (..., 6): rows x̂, ŷ, ẑ (..., 3, 3).
+
+    x̂ = r_c/|r_c| (radial, away from Earth), ẑ = (r_c × v_c)/|r_c × v_c| (orbit normal),
+    ŷ = ẑ × x̂ (along-track: the chief's velocity on a circular orbit; on an elliptic one v_c
+    leans out of ŷ by the flight-path angle, toward +x̂ while the radius grows). ``R @ p_eci``
+    gives LVLH.
+    """
+    x_c = np.asarray(x_c, dtype=float)
+    xh = x_c[..., :3] / np.linalg.norm(x_c[..., :3], axis=-1, keepdims=True)
+    zh = np.cross(x_c[..., :3], x_c[..., 3:])
+    zh /= np.linalg.norm(zh, axis=-1, keepdims=True)
+    yh = np.cross(zh, xh)
     return np.stack([xh, yh, zh], axis=-2)

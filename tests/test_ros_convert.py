@@ -19,6 +19,7 @@ from cikan_ros.ros.bag_writer import BagWriter, qos_dict, schema_text, type_hash
 from cikan_ros.ros.graph import QOS_PROFILES, QOS_STREAM, qos_for
 from cikan_ros.ros.graph_spec import QOS_KINDS, TOPICS
 from cikan_ros.ros.params import declare_config, parameter_descriptions
+from cikan_ros.scene import SceneBuilder, port_axis_lvlh
 from cikan_ros.units import ns_to_seconds, seconds_to_ns, through_si
 from ros_helpers import ros_env
 
@@ -107,6 +108,50 @@ def test_cdr_stamp_of_serialised_messages() -> None:
         assert cv.cdr_stamp_ns(serialize_message(msg)) == stamp
     with pytest.raises(cv.MessageError):
         cv.cdr_stamp_ns(b"\x00\x01\x00")
+    # a MarkerArray is stamped by its first marker; an empty one has no stamp
+    shapes = SceneBuilder(load_config(), 6).moving(np.array([1.0, 2.0, 3.0]), None)
+    arr = serialize_message(cv.markers_msg(shapes, stamp))
+    assert cv.cdr_stamp_ns(arr, "visualization_msgs/msg/MarkerArray") == stamp
+    with pytest.raises(cv.MessageError):
+        cv.cdr_stamp_ns(serialize_message(cv.markers_msg([], stamp)), "visualization_msgs/msg/MarkerArray")
+
+
+def test_scene_and_telemetry_messages() -> None:
+    """Shapes in km become markers in m in frame lvlh; the telemetry's names and values as given."""
+    from visualization_msgs.msg import Marker
+
+    cfg = load_config()
+    builder = SceneBuilder(cfg, 6)
+    (bodies,) = cv.markers_msg(builder.moving(np.array([1.0, -2.0, 0.5]), np.array([0.0, 3.0, 0.0])), 7).markers
+    assert bodies.header.frame_id == "lvlh" and bodies.type == Marker.SPHERE_LIST
+    assert cv.time_to_ns(bodies.header.stamp) == 7 and len(bodies.colors) == 2
+    assert [(p.x, p.y, p.z) for p in bodies.points] == [(1000.0, -2000.0, 500.0), (0.0, 3000.0, 0.0)]
+    cone, port, sphere = cv.markers_msg(builder.constraints(port_axis_lvlh(X, Side.BEHIND)[0]), 7).markers
+    assert cone.type == Marker.TRIANGLE_LIST and len(cone.points) % 3 == 0
+    assert sphere.scale.x == pytest.approx(2 * cfg.constraints.gamma1_km * 1e3)
+    assert port.type == Marker.ARROW and len(port.points) == 2
+    # the simulator's reusing maker gives the same messages as fresh ones, a growing path included
+    stream = cv.MarkerStream()
+    for k in range(13):
+        shapes = builder.moving(np.array([k, 1.0, 2.0]), np.array([0.0, -k, 0.0]) if k else None)
+        trail = builder.trail(k, np.array([1.0 + k, 2.0 * k, 0.5]), last=k == 12)
+        shapes += [trail] if trail is not None else []
+        assert stream(shapes, 100 + k) == cv.markers_msg(shapes, 100 + k)
+    # a step of the simulator's stream: the target where the scene's geometry puts it
+    from cikan_ros.ros.scene_stream import SceneStream
+    from cikan_ros.scene import virtual_target_lvlh
+    from cikan_ros.tsg import Predictor
+
+    pred = Predictor.from_config(cfg)
+    x_c = pred.orbit.state(500.0)
+    x_d = pred.orbit.state(400.0)
+    (_, telemetry), (_, arr), *_ = SceneStream(cfg, pred).step(50, 123, 500.0, x_c, x_d, np.zeros(3), -60.0)
+    target = arr.markers[0].points[1]
+    np.testing.assert_allclose([target.x, target.y, target.z],
+                               virtual_target_lvlh(pred.orbit, x_c, 500.0, -60.0)[:3] * 1e3, rtol=1e-12)
+    assert dict(zip(telemetry.name, telemetry.position))["tau"] == -60.0
+    msg = cv.telemetry_msg(["a", "b"], [1.5, float("nan")], 9)
+    assert list(msg.name) == ["a", "b"] and msg.position[0] == 1.5 and np.isnan(msg.position[1])
 
 
 def test_schemas_parse_with_rosbags_and_hashes_match_installed_json() -> None:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
 import subprocess
 import sys
@@ -44,12 +45,15 @@ def busy_cores() -> Iterator[None]:
 
 
 def plain(value: Any) -> Any:
-    """A decoded message as nested tuples (for equality), numpy arrays as lists."""
+    """A decoded message as nested tuples (for equality), numpy arrays as lists, NaN as "nan"
+    (the telemetry's values that are not evaluated: NaN equals nothing, itself included)."""
     if dataclasses.is_dataclass(value):
         return tuple((f.name, plain(getattr(value, f.name))) for f in dataclasses.fields(value)
                      if f.name != "__msgtype__")
     if isinstance(value, np.ndarray):
-        return tuple(value.tolist())
+        return tuple(plain(v) for v in value.tolist())
+    if isinstance(value, float) and math.isnan(value):
+        return "nan"
     if isinstance(value, (list, tuple)):
         return tuple(plain(v) for v in value)
     return value

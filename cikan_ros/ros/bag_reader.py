@@ -45,25 +45,28 @@ from ..mission import MissionResult, Schedule, audit_shifts
 from ..tsg import Predictor
 from ..units import m_to_km
 from .convert import MessageError, Timeline, accel_from_msg, diagnostic_values, floats, shift_from_msg, time_to_ns
-from .graph_spec import (ACCEL_CMD, CHIEF_ODOM, CLOCK, DEPUTY_ODOM, DIAGNOSTICS, TIME_SHIFT, TRUTH_ACCEL,
-                         TRUTH_CHIEF, TRUTH_DEPUTY)
+from .graph_spec import (ACCEL_CMD, CHIEF_ODOM, CLOCK, DEPUTY_ODOM, DIAGNOSTICS, SCENE_TOPICS, TIME_SHIFT,
+                         TRUTH_ACCEL, TRUTH_CHIEF, TRUTH_DEPUTY)
 
 
 #: Integer values of the simulator's summary record.
 _COUNTS = ("k", "steps", "deadline_misses", "rejected", "controller_holds")
 
 
-def read_bag(path: str | Path) -> dict[str, list[tuple[int, Any]]]:
-    """Every message of a bag, decoded by rosbags, as ``{topic: [(log_time_ns, msg), ...]}``;
-    CikanError (one line) if the bag cannot be read whole (:func:`read_bag_partial` reads what
-    is readable of a damaged one)."""
+def read_bag(path: str | Path, scene: bool = False) -> dict[str, list[tuple[int, Any]]]:
+    """Every message of a bag, decoded by rosbags, as ``{topic: [(log_time_ns, msg), ...]}``; the
+    telemetry and scene topics (:data:`~cikan_ros.ros.graph_spec.SCENE_TOPICS`, derived from the
+    others and more than half the decoding time) only with ``scene``. CikanError (one line) if
+    the bag cannot be read whole (:func:`read_bag_partial` reads what is readable of a damaged
+    one)."""
     from rosbags.highlevel import AnyReader, AnyReaderError
     from rosbags.typesys import Stores, get_typestore
 
     out: dict[str, list[tuple[int, Any]]] = {}
     try:
         with AnyReader([Path(path)], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
-            for conn, t, raw in reader.messages():
+            conns = [c for c in reader.connections if scene or c.topic not in SCENE_TOPICS]
+            for conn, t, raw in reader.messages(connections=conns):
                 out.setdefault(conn.topic, []).append((t, reader.deserialize(raw, conn.msgtype)))
     except AnyReaderError as exc:
         raise CikanError(f"bag {path} is unreadable: {exc}") from None
@@ -379,3 +382,30 @@ def bag_governor_announcements(path: str | Path) -> list[dict[str, Any]]:
     except json.JSONDecodeError:
         return []
     return [a for a in out if isinstance(a, dict)] if isinstance(out, list) else []
+
+
+def bag_telemetry(path: str | Path) -> dict[str, Any]:
+    """The telemetry dictionary document of a bag (:func:`cikan_ros.telemetry.to_json`; read the
+    points with :func:`cikan_ros.telemetry.from_json`): the one the recorder stored (metadata.yaml
+    ``cikan_ros.telemetry``, else the MCAP metadata record ``cikan_telemetry``), else, for a bag
+    recorded before bags carried one, the dictionary of the bag's configuration (``"stored":
+    false`` says so). CikanError naming a bag that is not there."""
+    from ..telemetry import dictionary, to_json
+    from .bag_writer import TELEMETRY_CUSTOM_KEY, TELEMETRY_RECORD
+
+    p = Path(path)
+    if not (p / "metadata.yaml").is_file():
+        raise CikanError(f"{p} is not a bag directory (no metadata.yaml)")
+    text = bag_custom_data(p).get(TELEMETRY_CUSTOM_KEY)
+    if text is None:
+        from mcap.reader import make_reader
+
+        for mcap_file in sorted(p.glob("*.mcap")):
+            with mcap_file.open("rb") as f:
+                for record in make_reader(f).iter_metadata():
+                    if record.name == TELEMETRY_RECORD:
+                        text = record.metadata["json"]
+    if text is not None:
+        return {**json.loads(text), "stored": True}
+    cfg = bag_config(p, None)
+    return {**to_json(dictionary(cfg), cfg), "stored": False}

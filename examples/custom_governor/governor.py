@@ -17,7 +17,7 @@ class CustomGovernor(Node):
         super().__init__("custom_governor")
         cfg = declare_config(self)                     # the mission's configuration (params file)
         peers = self.declare_parameter("graph.peers", ["controller"]).value
-        self.readers = sum(p in peers for p in ("controller", "recorder"))
+        self.readers = sum(p in peers for p in ("controller", "recorder", "sim"))
         self.pred = Predictor.from_config(cfg)
         self.pred.initial_shift(nominal_start(self.pred), 0.0)   # warm-up: compiled kernels load now
         self.epoch, self.period = round(cfg.orbit.epoch_unix_s * 1e9), round(cfg.control.period_s * 1e9)
