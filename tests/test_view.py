@@ -6,7 +6,6 @@ independent computation gives, and a live mission's plots grow as it flies."""
 
 from __future__ import annotations
 
-import math
 import os
 import shutil
 import subprocess
@@ -135,6 +134,11 @@ def test_a_bag_in_the_browser(browser_context: Any) -> None:
         for k, shown in ((0, before), (700, after)):
             np.testing.assert_allclose(shown, lvlh_position_m(x_d[k], x_c[k]), rtol=1e-6, atol=1e-6)
         assert page.inner_text("#time").startswith("t = 1 h 56 min 40 s")   # step 700 of T_c = 10 s
+        page.locator("#slider").fill("1440")      # the end: tau = 0, the virtual target is the chief
+        page.wait_for_function(f"{DEPUTY}.x[0] !== {after[0]}", timeout=10_000)
+        target = page.evaluate("(t => [t.x[0], t.y[0], t.z[0]])(document.getElementById('scene').data"
+                               ".find(t => t.name === 'virtual target'))")
+        assert np.linalg.norm(target) < 1e-3, target   # m
         assert not errors, errors
     finally:
         proc.terminate()

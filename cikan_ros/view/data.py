@@ -26,7 +26,7 @@ from ..constraints import margins
 from ..errors import CikanError
 from ..mission import violation_masks
 from ..montecarlo import load_run_arrays
-from ..scene import port_axis_lvlh, virtual_target_lvlh
+from ..scene import port_axis_lvlh, relative_lvlh
 from ..telemetry import FRAME_LVLH, TelemetryPoint, dictionary, values
 from ..tsg import ChiefAnchor, Predictor
 from ..units import KM
@@ -74,12 +74,11 @@ def virtual_target(track: Track, predictor: Predictor) -> NDArray:
     :class:`~cikan_ros.tsg.ChiefAnchor`); NaN where no shift is in force."""
     anchor = ChiefAnchor(predictor)
     seen = track.x_c if track.x_c_seen is None else track.x_c_seen
-    out = np.full((len(track.t), 3), math.nan)
+    target = np.full((len(track.t), 6), math.nan)
     for k, (t, tau) in enumerate(zip(track.t, track.tau)):
         if math.isfinite(tau):
-            orbit = anchor(seen[k], float(t)).orbit
-            out[k] = virtual_target_lvlh(orbit, track.x_c[k], float(t), float(tau))[:3] * KM
-    return out
+            target[k] = anchor(seen[k], float(t)).orbit.state(float(t) + float(tau))
+    return relative_lvlh(target, track.x_c)[0] * KM
 
 
 def violations(cfg: Config, points: Sequence[TelemetryPoint], track: Track, table: NDArray) -> dict[str, NDArray]:

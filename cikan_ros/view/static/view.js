@@ -14,7 +14,9 @@ const GL_POINTS = 20000;
 // Least height of one plot row (px).
 const ROW_PX = 110;
 
-const view = {data: null, version: 0, index: 0, following: true, ready: false, loadMs: null,
+// The page's state; `ready`, `loadMs` (first draw done, ms since navigation) and `renderMs` (the
+// last draw's parts) are read by the browser tests and the load measurement.
+const view = {data: null, version: 0, index: 0, following: true, ready: false, loadMs: null, renderMs: null,
               markerTraces: [], targetTrace: null, groups: []};
 window.cikanView = view;
 
@@ -70,20 +72,24 @@ function unit(a) {
   return [a[0] / n, a[1] / n, a[2] / n];
 }
 
-// The line-of-sight cone as a mesh: apex at the chief (the docking port), axis a (unit, LVLH),
-// half angle and length from the scene.
-function coneMesh(scene, a) {
+// The line-of-sight cone as a wireframe (its rim and GENERATORS lines from the apex; lines, as
+// the paths: a mesh would cost the first draw another WebGL program, about 0.4 s in software GL):
+// apex at the chief (the docking port), axis a (unit, LVLH), half angle and length from the scene.
+const GENERATORS = 12;
+function coneLines(scene, a) {
   const len = 1.1 * scene.reach_m, r = len * Math.tan(scene.half_angle_deg * Math.PI / 180), n = 48;
   const u = unit(cross(a, Math.abs(a[0]) < 0.9 ? [1, 0, 0] : [0, 1, 0])), v = cross(a, u);
-  const x = [0], y = [0], z = [0], i = [], j = [], k = [];
-  for (let s = 0; s < n; s++) {
+  const rim = s => {
     const c = Math.cos(2 * Math.PI * s / n), sn = Math.sin(2 * Math.PI * s / n);
-    x.push(a[0] * len + r * (c * u[0] + sn * v[0]));
-    y.push(a[1] * len + r * (c * u[1] + sn * v[1]));
-    z.push(a[2] * len + r * (c * u[2] + sn * v[2]));
-    i.push(0); j.push(1 + s); k.push(1 + (s + 1) % n);
+    return [0, 1, 2].map(i => a[i] * len + r * (c * u[i] + sn * v[i]));
+  };
+  const x = [], y = [], z = [];
+  const add = p => { x.push(p === null ? null : p[0]); y.push(p === null ? null : p[1]); z.push(p === null ? null : p[2]); };
+  for (let s = 0; s <= n; s++) add(rim(s % n));
+  for (let g = 0; g < GENERATORS; g++) {
+    add(null); add([0, 0, 0]); add(rim(g * n / GENERATORS));
   }
-  return {x, y, z, i, j, k};
+  return {x, y, z};
 }
 
 function axisAt(d, index) {
@@ -94,9 +100,9 @@ function axisAt(d, index) {
 function sceneFigure(d) {
   const single = d.runs.length === 1;
   const traces = [];
-  const cone = coneMesh(d.scene, axisAt(d, view.index));
-  traces.push({type: "mesh3d", name: `line-of-sight cone (${d.scene.half_angle_deg}°, ${d.side})`, ...cone,
-               color: "#4a90d9", opacity: 0.12, hoverinfo: "skip", showlegend: true, showscale: false});
+  traces.push({type: "scatter3d", mode: "lines", name: `line-of-sight cone (${d.scene.half_angle_deg}°, ${d.side})`,
+               ...coneLines(d.scene, axisAt(d, view.index)), connectgaps: false, hoverinfo: "skip",
+               line: {color: "#4a90d9", width: 2}, opacity: 0.5});
   traces.push({type: "scatter3d", mode: "markers", name: "docking port (chief)", x: [0], y: [0], z: [0],
                marker: {symbol: "diamond", size: 5, color: "#1c2430"}});
   view.groups.forEach(([group, runs], n) => {
@@ -108,7 +114,7 @@ function sceneFigure(d) {
   if (single && d.runs[0].target) {
     const tg = d.runs[0].target;
     traces.push({type: "scatter3d", mode: "lines", name: "virtual target path", x: tg[0], y: tg[1], z: tg[2],
-                 line: {color: "#2ca02c", width: 2, dash: "dot"}, connectgaps: false});
+                 line: {color: "#2ca02c", width: 2}, connectgaps: false});
     view.targetTrace = traces.length;
     traces.push({type: "scatter3d", mode: "markers", name: "virtual target", x: [], y: [], z: [],
                  marker: {symbol: "circle-open", size: 6, color: "#2ca02c"}});
@@ -141,7 +147,7 @@ function plotsFigure(d) {
   const traces = [], annotations = [];
   // each row keeps a readable height; the column scrolls when they do not fit
   const height = Math.max(document.getElementById("plots-box").clientHeight, ROW_PX * rows + 50);
-  const layout = {uirevision: d.source, showlegend: false, margin: {l: 70, r: 20, t: 10, b: 40}, height,
+  const layout = {uirevision: d.source, showlegend: false, margin: {l: 70, r: 20, t: 26, b: 40}, height,
                   hovermode: "closest", annotations,
                   xaxis: {title: {text: "mission time (h)"}, anchor: `y${rows}`, range: [0, tmax]},
                   shapes: [{type: "line", xref: "x", yref: "paper", x0: 0, x1: 0, y0: 0, y1: 1,
@@ -208,7 +214,7 @@ function status(d) {
 // markers and the virtual target, as {traces, x, y, z} for Plotly.restyle; the cursor's time.
 function moving(d, index) {
   const t = d.runs[0].t[index];
-  const cone = coneMesh(d.scene, axisAt(d, index));
+  const cone = coneLines(d.scene, axisAt(d, index));
   const traces = [0], x = [cone.x], y = [cone.y], z = [cone.z];
   view.groups.forEach(([, runs], n) => {
     const gx = [], gy = [], gz = [];
@@ -250,8 +256,11 @@ async function render(d) {
   const s = sceneFigure(d), p = plotsFigure(d), m = moving(d, view.index);
   m.traces.forEach((trace, i) => Object.assign(s.traces[trace], {x: m.x[i], y: m.y[i], z: m.z[i]}));
   Object.assign(p.layout.shapes[0], {x0: m.t / 3600, x1: m.t / 3600});
+  const t0 = performance.now();
   await Plotly.react("scene", s.traces, s.layout, {responsive: true});
+  const t1 = performance.now();
   await Plotly.react("plots", p.traces, p.layout, {responsive: true});
+  view.renderMs = {data: t0, scene: t1 - t0, plots: performance.now() - t1};
   slider.max = String(n - 1);
   slider.value = String(view.index);
   label(d, view.index);
