@@ -48,6 +48,12 @@ def test_bad_input_is_one_line_and_exit_code_2(make: str, tmp_path: Path, capsys
     assert err.startswith("cikan view: error: ") and err.count("\n") == 1, err
 
 
+def test_mission_view_needs_the_ros_graph(capsys: pytest.CaptureFixture) -> None:
+    """--view follows the bag of a ROS run: --offline records none, one line."""
+    assert main(["mission", "--offline", "--view"]) == 2
+    assert capsys.readouterr().err == "cikan mission: error: --view follows the bag of the ROS graph; --offline records none\n"
+
+
 def test_montecarlo_directory_overlays_its_runs(tmp_path: Path) -> None:
     """Every flown run of every governor is drawn (its own time axis and LVLH path), the
     telemetry carries the configuration's limits, the cone the run's half angle."""
