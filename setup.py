@@ -60,6 +60,8 @@ def share_files() -> list[tuple[str, list[str]]]:
                                             for p in (HERE / "config" / "truth").glob("*.yaml"))),
            (f"{share}/config/scenarios", sorted(str(p.relative_to(HERE))
                                                 for p in (HERE / "config" / "scenarios").glob("*.yaml"))),
+           (f"{share}/config/foxglove", sorted(str(p.relative_to(HERE))
+                                               for p in (HERE / "config" / "foxglove").glob("*.json"))),
            (f"{share}/launch", sorted(str(p.relative_to(HERE)) for p in (HERE / "launch").glob("*.launch.*"))),
            (f"{share}/models", ["models/README.md"])]
     # Every model directory (a card beside its weights), the scenarios' subdirectories included.

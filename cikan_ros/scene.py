@@ -11,26 +11,47 @@ turns in LVLH with the flight-path angle. Units: km, km/s (the message side conv
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .config import Side
+from .config import Config, Side
 from .orbit import KeplerOrbit, lvlh_frame
 
 
+@nb.njit(cache=True)
+def relative_lvlh_kernel(x_d: NDArray, x_c: NDArray, out: NDArray) -> None:
+    """Row-wise (N, 6), (N, 6) -> out (N, 6): :func:`relative_lvlh` compiled (the simulator calls
+    it every step)."""
+    for k in range(x_d.shape[0]):
+        r = x_c[k, :3]
+        v = x_c[k, 3:]
+        rn = math.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
+        h = np.cross(r, v)
+        hn = math.sqrt(h[0] * h[0] + h[1] * h[1] + h[2] * h[2])
+        xh = r / rn
+        zh = h / hn
+        yh = np.cross(zh, xh)
+        p = x_d[k, :3] - r
+        w = h / (rn * rn)
+        dv = x_d[k, 3:] - v - np.cross(w, p)
+        for i, e in enumerate((xh, yh, zh)):
+            out[k, i] = e[0] * p[0] + e[1] * p[1] + e[2] * p[2]
+            out[k, 3 + i] = e[0] * dv[0] + e[1] * dv[1] + e[2] * dv[2]
+
+
 def relative_lvlh(x_d: ArrayLike, x_c: ArrayLike) -> tuple[NDArray, NDArray]:
-    """(position (..., 3) km, velocity (..., 3) km/s) of deputy x_d relative to chief x_c (..., 6)
-    in the chief's LVLH frame; the velocity is the rate seen in the rotating frame,
-    R (v_rel - w x p_rel) with the frame's rate w = (r_c x v_c) / |r_c|^2 (two-body)."""
-    x_d = np.asarray(x_d, dtype=float)
-    x_c = np.asarray(x_c, dtype=float)
-    rot = lvlh_frame(x_c)
-    p = x_d[..., :3] - x_c[..., :3]
-    v = x_d[..., 3:] - x_c[..., 3:]
-    w = np.cross(x_c[..., :3], x_c[..., 3:]) / np.sum(x_c[..., :3] ** 2, axis=-1, keepdims=True)
-    v = v - np.cross(w, p)
-    return np.einsum("...ij,...j->...i", rot, p), np.einsum("...ij,...j->...i", rot, v)
+    """(position (N, 3) km, velocity (N, 3) km/s) of deputy x_d relative to chief x_c (N, 6) or
+    (6,) in the chief's LVLH frame (:func:`cikan_ros.orbit.lvlh_frame`); the velocity is the rate
+    seen in the rotating frame, R (v_rel - w x p_rel) with the frame's rate w = (r_c x v_c) /
+    |r_c|^2 (two-body)."""
+    x_d = np.ascontiguousarray(np.atleast_2d(x_d), dtype=float)
+    x_c = np.ascontiguousarray(np.broadcast_to(np.atleast_2d(np.asarray(x_c, dtype=float)), x_d.shape))
+    out = np.empty(x_d.shape)
+    relative_lvlh_kernel(x_d, x_c, out)
+    return out[:, :3], out[:, 3:]
 
 
 def port_axis_lvlh(x_c: ArrayLike, side: Side) -> NDArray:
@@ -73,4 +94,83 @@ def virtual_target_lvlh(orbit: KeplerOrbit, x_c: ArrayLike, t: float, tau: float
     controller steers to it) relative to the chief state x_c (6,) at t, in LVLH: (position km,
     velocity km/s) as one (6,) array."""
     p, v = relative_lvlh(orbit.state(t + tau), x_c)
-    return np.concatenate([p, v])
+    return np.concatenate([p[0], v[0]])
+
+
+# -- the scene as shapes (the markers; :func:`cikan_ros.ros.convert.markers_msg` makes messages) --
+#: RGBA colours of the shapes.
+COLORS = {"deputy": (0.2, 0.5, 1.0, 1.0), "target": (1.0, 0.55, 0.0, 1.0), "path": (0.6, 0.75, 1.0, 1.0),
+          "cone": (0.2, 0.9, 0.3, 0.25), "port": (1.0, 0.2, 0.2, 1.0), "sphere": (1.0, 0.9, 0.2, 0.15)}
+
+
+@dataclass(frozen=True)
+class Shape:
+    """One marker in LVLH (km): ``kind`` sphere (``points`` (1, 3) its centre, ``size`` its
+    diameter), line_strip (``size`` the line width), triangle_list, or arrow (two points: tail and
+    head; ``size`` the shaft diameter). ``ns``/``ident`` name it: a newer shape of the same name
+    replaces it in a viewer."""
+
+    ns: str
+    ident: int
+    kind: str
+    points: NDArray
+    size: float
+    color: tuple[float, float, float, float]
+
+
+class SceneBuilder:
+    """The shapes of a mission's scene, step by step, with little work per step: the deputy and
+    the virtual target every step; the path so far (one point every ``path_every`` steps plus the
+    current one) every ``path_every`` steps; the cone, the port and the approach-velocity sphere
+    at the first step and again when the port axis has turned by ``turn_deg`` in LVLH."""
+
+    def __init__(self, cfg: Config, path_every: int, turn_deg: float = 1.0) -> None:
+        c = cfg.constraints
+        self.half_angle_deg = c.los_half_angle_deg
+        self.side = cfg.side
+        #: The cone is drawn out to 1.2 x the nominal start distance (or gamma1, if larger).
+        self.cone_length_km = 1.2 * max(cfg.mission.nominal_distance_km, c.gamma1_km)
+        self.sphere_radius_km = c.gamma1_km
+        self.path_every = max(1, int(path_every))
+        self.cos_turn = math.cos(math.radians(turn_deg))
+        self.axis: NDArray | None = None
+        self.path: list[NDArray] = []
+
+    def constraints(self, x_c: ArrayLike, force: bool = False) -> list[Shape] | None:
+        """Cone, port and sphere, when first asked, when ``force``d or when the port axis has
+        turned (else None)."""
+        axis = port_axis_lvlh(x_c, self.side)
+        if not force and self.axis is not None and float(axis @ self.axis) >= self.cos_turn:
+            return None
+        self.axis = axis
+        port_len = 0.05 * self.cone_length_km
+        origin = np.zeros((1, 3))
+        return [Shape("cone", 0, "triangle_list", cone_triangles(axis, self.half_angle_deg, self.cone_length_km),
+                      1.0, COLORS["cone"]),
+                Shape("port", 0, "arrow", np.stack([axis * port_len, np.zeros(3)]), 0.1 * port_len,
+                      COLORS["port"]),
+                Shape("approach_sphere", 0, "sphere", origin, 2.0 * self.sphere_radius_km, COLORS["sphere"])]
+
+    def moving(self, p_d: ArrayLike, p_v: ArrayLike | None) -> list[Shape]:
+        """The deputy at p_d and the virtual target at p_v (LVLH, km; None: no shift yet), sized
+        2 % of the range (at least 1 m) so both show at 100 km and at the port."""
+        p_d = np.asarray(p_d, dtype=float)
+        size = max(0.02 * float(np.linalg.norm(p_d)), 1e-3)
+        shapes = [Shape("deputy", 0, "sphere", p_d[None, :], size, COLORS["deputy"])]
+        if p_v is not None:
+            shapes.append(Shape("target", 0, "sphere", np.asarray(p_v, dtype=float)[None, :], size,
+                                COLORS["target"]))
+        return shapes
+
+    def trail(self, k: int, p_d: ArrayLike, last: bool = False) -> Shape | None:
+        """The path so far as a line strip at every ``path_every``-th step k (and at the ``last``),
+        else None; keeps one point per ``path_every`` steps."""
+        p_d = np.asarray(p_d, dtype=float)
+        due = k % self.path_every == 0
+        if due:
+            self.path.append(p_d)
+        if not (due or last):
+            return None
+        pts = np.array(self.path if due else [*self.path, p_d])
+        width = max(2e-3 * float(np.max(np.linalg.norm(pts, axis=1))), 1e-4)
+        return Shape("path", 0, "line_strip", pts, width, COLORS["path"])

@@ -19,13 +19,15 @@ import math
 from dataclasses import asdict, dataclass, fields
 from typing import Any
 
+import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .config import Config, Side
-from .constraints import margins
+from .constraints import (C_COS_ALPHA, C_GAMMA1, C_GAMMA2, C_GAMMA3, constraint_params, margins_kernel,
+                          rel_norms_kernel)
 from .ros.graph_spec import TELEMETRY, TIME_SHIFT, TOPICS
-from .scene import relative_lvlh
+from .scene import relative_lvlh_kernel
 from .units import KM
 
 #: The document format written by :func:`to_json` and read by :func:`from_json`.
@@ -33,6 +35,8 @@ FORMAT = "cikan-telemetry"
 VERSION = 1
 #: The topic the per-step values go out on.
 TELEMETRY_TOPIC = TELEMETRY
+#: How many values a step has (the points of :func:`dictionary`).
+N_VALUES = 15
 #: The frame of relative positions and velocities (the chief's LVLH, :mod:`cikan_ros.scene`).
 FRAME_LVLH = "lvlh"
 
@@ -111,9 +115,9 @@ def dictionary(cfg: Config) -> list[TelemetryPoint]:
         rows.append((f"v_{axis_name}", f"relative velocity {axis_name} ({what})", "m/s", FRAME_LVLH,
                      None, None, f"rate of the relative position in the rotating LVLH frame, axis "
                                  f"{axis_name} ({what})", {}))
-    topic = TELEMETRY_TOPIC if TELEMETRY_TOPIC in TOPICS else None
+    topic = TOPICS[TELEMETRY_TOPIC].name
     return [TelemetryPoint(key=key, name=name, type="float64", unit=unit, frame=frame, topic=topic,
-                           field=f"position[{i}]" if topic else None, limit_low=lo, limit_high=hi,
+                           field=f"position[{i}]", limit_low=lo, limit_high=hi,
                            description=desc, **extra)
             for i, (key, name, unit, frame, lo, hi, desc, extra) in enumerate(rows)]
 
@@ -123,26 +127,40 @@ def keys(cfg: Config) -> list[str]:
     return [p.key for p in dictionary(cfg)]
 
 
+@nb.njit(cache=True)
+def values_kernel(x_c: NDArray, x_d: NDArray, u: NDArray, tau: NDArray, cp: NDArray, out: NDArray) -> None:
+    """Row-wise (N, 6), (N, 6), (N, 3), (N,) -> out (N, len(dictionary)): :func:`values` compiled
+    (the simulator calls it every step); the margins are :func:`margins_kernel`'s."""
+    n = x_d.shape[0]
+    m = np.empty((n, 4))
+    margins_kernel(x_d, x_c, u, cp, m)
+    rel = np.empty((n, 6))
+    relative_lvlh_kernel(x_d, x_c, rel)
+    for k in range(n):
+        rng, speed = rel_norms_kernel(x_d[k], x_c[k])
+        cos_theta = min(1.0, max(-1.0, cp[C_COS_ALPHA] - m[k, 1])) if m[k, 1] == m[k, 1] else math.nan
+        limit = cp[C_GAMMA2] * rng + cp[C_GAMMA3] if rng <= cp[C_GAMMA1] else math.nan
+        unorm = math.sqrt(u[k, 0] ** 2 + u[k, 1] ** 2 + u[k, 2] ** 2)
+        row = (tau[k], m[k, 1], math.degrees(math.acos(cos_theta)), m[k, 2] * KM, unorm * KM,
+               m[k, 3] * KM, speed * KM, limit * KM, rng * KM)
+        for i in range(9):
+            out[k, i] = row[i]
+        for i in range(6):
+            out[k, 9 + i] = rel[k, i] * KM
+
+
 def values(cfg: Config, x_c: ArrayLike, x_d: ArrayLike, u: ArrayLike, tau: ArrayLike) -> NDArray:
     """The telemetry values (N, len(dictionary)) in dictionary order and units, of chief states
     x_c (N, 6), deputy states x_d (N, 6) (km, km/s, ECI), applied accelerations u (N, 3) (km/s^2)
     and shifts tau (N,) (s); NaN where a constraint is not evaluated. The margins are those of
     :func:`cikan_ros.constraints.margins`, h2 against the thrust limit on the truth."""
-    x_d = np.atleast_2d(np.asarray(x_d, dtype=float))
-    x_c = np.broadcast_to(np.atleast_2d(np.asarray(x_c, dtype=float)), x_d.shape)
-    u = np.broadcast_to(np.atleast_2d(np.asarray(u, dtype=float)), x_d.shape[:-1] + (3,))
-    c = cfg.constraints
-    m = margins(x_d, x_c, u, c, cfg.thrust_limit_kmps2, cfg.side)
-    rel = x_d - x_c
-    rng = np.linalg.norm(rel[:, :3], axis=1)
-    speed = np.linalg.norm(rel[:, 3:], axis=1)
-    cos_theta = np.clip(math.cos(math.radians(c.los_half_angle_deg)) - m.h1_normalised, -1.0, 1.0)
-    limit = np.where(rng <= c.gamma1_km, c.gamma2_per_s * rng + c.gamma3_kmps, np.nan)
-    p, v = relative_lvlh(x_d, x_c)
-    cols = [np.broadcast_to(np.asarray(tau, dtype=float), rng.shape), m.h1_normalised,
-            np.degrees(np.arccos(cos_theta)), m.h2 * KM, np.linalg.norm(u, axis=1) * KM, m.h3 * KM,
-            speed * KM, limit * KM, rng * KM, *(p.T * KM), *(v.T * KM)]
-    return np.stack(cols, axis=1)
+    x_d = np.ascontiguousarray(np.atleast_2d(np.asarray(x_d, dtype=float)))
+    x_c = np.ascontiguousarray(np.broadcast_to(np.atleast_2d(np.asarray(x_c, dtype=float)), x_d.shape))
+    u = np.ascontiguousarray(np.broadcast_to(np.atleast_2d(np.asarray(u, dtype=float)), x_d.shape[:-1] + (3,)))
+    tau = np.ascontiguousarray(np.broadcast_to(np.asarray(tau, dtype=float), x_d.shape[:1]))
+    out = np.empty((x_d.shape[0], N_VALUES))
+    values_kernel(x_c, x_d, u, tau, constraint_params(cfg.constraints, cfg.thrust_limit_kmps2, cfg.side), out)
+    return out
 
 
 # -- the document --------------------------------------------------------------------------------

@@ -11,6 +11,13 @@ replaced by zero thrust and reported; after one miss the sim waits only ``sim.lo
 per step until the controller answers again. Non-finite, out-of-range, off-grid or stale
 commands are rejected with a diagnostic. The process ends after T_sim (or docking, with
 ``sim.stop_on_dock``) with a summary diagnostic (steps, wall time, real-time factor, step latency).
+
+Telemetry and scene: once step k has both its applied thrust and its time shift (/tsg/time_shift,
+read here too; a step without one holds the last, as the controller does), the simulator
+publishes its telemetry on /telemetry (:mod:`cikan_ros.telemetry`, on the truth) and its scene in
+the chief's LVLH frame on /scene/markers, /scene/path and /scene/constraints
+(:class:`cikan_ros.scene.SceneBuilder`). It does so after publishing the states of step k+1,
+while the governor and the controller work on them.
 """
 
 from __future__ import annotations
@@ -25,13 +32,17 @@ from rclpy.node import Node
 from rclpy.task import Future
 from diagnostic_msgs.msg import DiagnosticArray
 from rosgraph_msgs.msg import Clock as ClockMsg
+from sensor_msgs.msg import JointState, TimeReference
+from visualization_msgs.msg import MarkerArray
 
 from cikan_ros.constraints import margins
 from cikan_ros.mission import ClosedLoop, nominal_start, sample_start
 from cikan_ros.ros import convert as cv
 from cikan_ros.ros.graph import QOS_STREAM, PeerWatch, Readiness, qos_for, run_node
-from cikan_ros.ros.graph_spec import (ACCEL_CMD, CHIEF_ODOM, CLOCK, DEPUTY_ODOM, DIAGNOSTICS, TRUTH_ACCEL,
+from cikan_ros.ros.graph_spec import (ACCEL_CMD, CHIEF_ODOM, CLOCK, DEPUTY_ODOM, DIAGNOSTICS, SCENE_CONSTRAINTS,
+                                      SCENE_MARKERS, SCENE_PATH, TELEMETRY, TIME_SHIFT, TRUTH_ACCEL,
                                       TRUTH_CHIEF, TRUTH_DEPUTY, required_publishers, required_readers)
+from cikan_ros.ros.scene_stream import SceneStream
 from cikan_ros.truth import Truth
 from cikan_ros.ros.params import NodeSpec, declare_config, declare_parameters
 from cikan_ros.tsg import Predictor
@@ -80,6 +91,14 @@ class SimNode(Node):
         self.pub_truth_deputy = self.readiness.publisher(Odometry, TRUTH_DEPUTY, QOS_STREAM)
         self.pub_truth_accel = self.readiness.publisher(AccelStamped, TRUTH_ACCEL, QOS_STREAM)
         self.sub_accel = self.readiness.subscription(AccelStamped, ACCEL_CMD, self.on_accel, QOS_STREAM)
+        self.sub_shift = self.readiness.subscription(TimeReference, TIME_SHIFT, self.on_shift, QOS_STREAM)
+        self.pub_scene = {TELEMETRY: self.readiness.publisher(JointState, TELEMETRY, QOS_STREAM)}
+        self.pub_scene.update({t: self.readiness.publisher(MarkerArray, t, QOS_STREAM)
+                               for t in (SCENE_MARKERS, SCENE_PATH, SCENE_CONSTRAINTS)})
+        self.scene = SceneStream(cfg, pred)
+        self.shifts: dict[int, float] = {}      # stamp -> tau (s) of the shifts not yet used
+        self.steps: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []  # (k, x_c, x_d, u) awaiting a shift
+        self.tau_held = float("nan")
         self.steady = steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.deadline = self.create_timer(self.deadline_s, self.on_deadline, clock=steady, autostart=False)
         self.lost_deadline = self.create_timer(self.lost_deadline_s, self.on_deadline, clock=steady,
@@ -87,9 +106,11 @@ class SimNode(Node):
         waits = [(p, required_readers(t, peers)) for p, t in
                  ((self.pub_deputy, DEPUTY_ODOM), (self.pub_chief, CHIEF_ODOM), (self.pub_clock, CLOCK),
                   (self.pub_diag, DIAGNOSTICS), (self.pub_truth_chief, TRUTH_CHIEF),
-                  (self.pub_truth_deputy, TRUTH_DEPUTY), (self.pub_truth_accel, TRUTH_ACCEL))]
+                  (self.pub_truth_deputy, TRUTH_DEPUTY), (self.pub_truth_accel, TRUTH_ACCEL),
+                  *((pub, t) for t, pub in self.pub_scene.items()))]
         self.peers = PeerWatch(self.readiness, peers)
-        self.readiness.start(waits, [(self.sub_accel, required_publishers(ACCEL_CMD, peers))], timeout,
+        self.readiness.start(waits, [(self.sub_accel, required_publishers(ACCEL_CMD, peers)),
+                                     (self.sub_shift, required_publishers(TIME_SHIFT, peers))], timeout,
                              self.start, self.peers.missing)
 
     # -- lockstep -------------------------------------------------------------------------------
@@ -169,6 +190,7 @@ class SimNode(Node):
             "k": self.k, "event": "step", "thrust": source, "u_kmps2": u,
             "h1_normalised": m.h1_normalised[0], "h2_kmps2": m.h2[0], "h3_kmps": m.h3[0],
             "latency_ms": ms}))
+        self.steps.append((self.k, self.x_c, self.x, u))
         self.x = self.truth.step_deputy(self.k, self.x, u)
         self.k += 1
         pause = self.wall0 + self.k * self.cfg.control.period_s / self.max_rtf - time.perf_counter() \
@@ -177,6 +199,41 @@ class SimNode(Node):
             self.pace = self.create_timer(pause, lambda k=self.k: self.paced(k), clock=self.steady)
         else:
             self.publish_state()
+        self.publish_scene()
+
+    # -- telemetry and scene --------------------------------------------------------------------
+    def on_shift(self, msg: TimeReference) -> None:
+        """A time shift: kept for the telemetry and the scene of its step (never for control)."""
+        try:
+            stamp, tau, _source = cv.shift_from_msg(msg, self.cfg.side)
+        except cv.MessageError:
+            return  # the controller reports a bad shift; the scene holds the last good one
+        self.shifts.setdefault(stamp, tau)
+        if self.steps:
+            self.publish_scene()
+
+    def publish_scene(self, final: bool = False) -> None:
+        """Telemetry and scene of every applied step whose shift has come (and, once a later shift
+        has come or the mission ended, of the steps before it that got none: the last shift holds)."""
+        latest = max(self.shifts, default=-1)
+        while self.steps:
+            k, x_c, x_d, u = self.steps[0]
+            stamp = self.timeline.stamp_ns(k)
+            if stamp in self.shifts:
+                self.tau_held = self.shifts.pop(stamp)
+            elif stamp > latest and not final:
+                return
+            self.steps.pop(0)
+            self.emit_scene(k, x_c, x_d, u, self.tau_held, last=final and not self.steps)
+        oldest = self.timeline.stamp_ns(self.steps[0][0] if self.steps else self.k)
+        for stamp in [s for s in self.shifts if s < oldest]:
+            del self.shifts[stamp]  # a second shift of a step already shown
+
+    def emit_scene(self, k: int, x_c: np.ndarray, x_d: np.ndarray, u: np.ndarray, tau: float,
+                   last: bool = False) -> None:
+        stamp = self.timeline.stamp_ns(k)
+        for topic, msg in self.scene.step(k, stamp, self.timeline.seconds(stamp), x_c, x_d, u, tau, last):
+            self.pub_scene[topic].publish(msg)
 
     def paced(self, k: int) -> None:
         """One-shot pacing timer of step k. A loaded executor may deliver two expiries of it
@@ -189,6 +246,8 @@ class SimNode(Node):
 
     def finish(self) -> None:
         wall = time.perf_counter() - self.wall0
+        self.steps.append((self.k, self.x_c, self.x, np.zeros(3)))  # the last state: no command
+        self.publish_scene(final=True)
         m = margins(self.x, self.x_c, np.zeros(3), self.cfg.constraints, self.u_limit, self.cfg.side)
         steady = np.array(self.latency_ms)  # steps where the governor only holds tau
         sim_s = self.k * self.cfg.control.period_s

@@ -65,7 +65,7 @@ def test_install_layout(installs: dict[str, Path], mode: str) -> None:
     assert (prefix / "share" / "ament_index" / "resource_index" / "packages" / "cikan_ros").is_file()
     expected = ["package.xml", "config/cikan.yaml", "config/nodes.yaml", "launch/mission.launch.yaml",
                 "config/scenarios/paper.yaml", "config/scenarios/leo.yaml", "config/scenarios/geo.yaml",
-                "models/README.md"] + [f"models/{f}/{name}" for f in FAMILIES
+                "config/foxglove/mission_layout.json", "models/README.md"] + [f"models/{f}/{name}" for f in FAMILIES
                                        for name in ("model.safetensors", "card.json")]
     # the paper's five families, and the scenarios' models in their subdirectories
     assert {"cikan", "grbf", "rswaf", "relu", "gelu", "leo/cikan-ahead"} <= set(FAMILIES)

@@ -19,6 +19,7 @@ from cikan_ros.ros.bag_writer import BagWriter, qos_dict, schema_text, type_hash
 from cikan_ros.ros.graph import QOS_PROFILES, QOS_STREAM, qos_for
 from cikan_ros.ros.graph_spec import QOS_KINDS, TOPICS
 from cikan_ros.ros.params import declare_config, parameter_descriptions
+from cikan_ros.scene import SceneBuilder
 from cikan_ros.units import ns_to_seconds, seconds_to_ns, through_si
 from ros_helpers import ros_env
 
@@ -107,6 +108,29 @@ def test_cdr_stamp_of_serialised_messages() -> None:
         assert cv.cdr_stamp_ns(serialize_message(msg)) == stamp
     with pytest.raises(cv.MessageError):
         cv.cdr_stamp_ns(b"\x00\x01\x00")
+    # a MarkerArray is stamped by its first marker; an empty one has no stamp
+    shapes = SceneBuilder(load_config(), 6).moving(np.array([1.0, 2.0, 3.0]), None)
+    arr = serialize_message(cv.markers_msg(shapes, stamp))
+    assert cv.cdr_stamp_ns(arr, "visualization_msgs/msg/MarkerArray") == stamp
+    with pytest.raises(cv.MessageError):
+        cv.cdr_stamp_ns(serialize_message(cv.markers_msg([], stamp)), "visualization_msgs/msg/MarkerArray")
+
+
+def test_scene_and_telemetry_messages() -> None:
+    """Shapes in km become markers in m in frame lvlh; the telemetry's names and values as given."""
+    from visualization_msgs.msg import Marker
+
+    cfg = load_config()
+    builder = SceneBuilder(cfg, 6)
+    (deputy,) = cv.markers_msg(builder.moving(np.array([1.0, -2.0, 0.5]), None), 7).markers
+    assert deputy.header.frame_id == "lvlh" and deputy.type == Marker.SPHERE and cv.time_to_ns(deputy.header.stamp) == 7
+    assert (deputy.pose.position.x, deputy.pose.position.y, deputy.pose.position.z) == (1000.0, -2000.0, 500.0)
+    cone, port, sphere = cv.markers_msg(builder.constraints(X), 7).markers
+    assert cone.type == Marker.TRIANGLE_LIST and len(cone.points) % 3 == 0
+    assert sphere.scale.x == pytest.approx(2 * cfg.constraints.gamma1_km * 1e3)
+    assert port.type == Marker.ARROW and len(port.points) == 2
+    msg = cv.telemetry_msg(["a", "b"], [1.5, float("nan")], 9)
+    assert list(msg.name) == ["a", "b"] and msg.position[0] == 1.5 and np.isnan(msg.position[1])
 
 
 def test_schemas_parse_with_rosbags_and_hashes_match_installed_json() -> None:

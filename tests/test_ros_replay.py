@@ -9,6 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from cikan_ros.config import load_config
@@ -31,6 +32,11 @@ def _key(topic: str, msg: object) -> tuple:
         return (stamp_ns(msg), a.x, a.y, a.z)
     if topic == "/tsg/time_shift":
         return (stamp_ns(msg), msg.time_ref.sec, msg.time_ref.nanosec, msg.source)
+    if topic == "/telemetry":
+        return (stamp_ns(msg), tuple(msg.name), tuple(np.nan_to_num(msg.position, nan=-1e300)))
+    if topic.startswith("/scene/"):
+        return tuple((stamp_ns(m), m.ns, m.id, m.pose.position.x, m.pose.position.y, m.pose.position.z,
+                      tuple((p.x, p.y, p.z) for p in m.points)) for m in msg.markers)
     return (stamp_ns(msg), tuple((st.name, st.message, tuple((kv.key, kv.value) for kv in st.values))
                                  for st in msg.status))
 

@@ -13,7 +13,7 @@ import pytest
 
 from cikan_ros.config import load_config
 from cikan_ros.orbit import KeplerOrbit
-from cikan_ros.telemetry import FORMAT, dictionary, from_json, keys, to_json, values
+from cikan_ros.telemetry import FORMAT, N_VALUES, dictionary, from_json, keys, to_json, values
 
 UNITS = {"s", "1", "deg", "m", "m/s", "m/s^2"}
 
@@ -90,6 +90,10 @@ def test_values_against_hand_geometry() -> None:
     x_far[:3] -= 10.0 * vhat
     far = dict(zip(keys(cfg), values(cfg, x_c, x_far, np.zeros(3), 0.0)[0]))
     assert math.isnan(far["h3"]) and math.isnan(far["speed_limit"]) and far["range"] == pytest.approx(1e4)
+    # at the port (within the apex radius) h1 and the angle are not evaluated
+    at_port = dict(zip(keys(cfg), values(cfg, x_c, x_c, np.zeros(3), 0.0)[0]))
+    assert math.isnan(at_port["h1"]) and math.isnan(at_port["los_angle"]) and at_port["range"] == 0.0
+    assert len(keys(cfg)) == N_VALUES
 
 
 def test_cli_json() -> None:

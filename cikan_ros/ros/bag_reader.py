@@ -302,3 +302,30 @@ def bag_governor_announcements(path: str | Path) -> list[dict[str, Any]]:
     except json.JSONDecodeError:
         return []
     return [a for a in out if isinstance(a, dict)] if isinstance(out, list) else []
+
+
+def bag_telemetry(path: str | Path) -> dict[str, Any]:
+    """The telemetry dictionary document of a bag (:func:`cikan_ros.telemetry.to_json`; read the
+    points with :func:`cikan_ros.telemetry.from_json`): the one the recorder stored (metadata.yaml
+    ``cikan_ros.telemetry``, else the MCAP metadata record ``cikan_telemetry``), else, for a bag
+    recorded before bags carried one, the dictionary of the bag's configuration (``"stored":
+    false`` says so). CikanError naming a bag that is not there."""
+    from ..telemetry import dictionary, to_json
+    from .bag_writer import TELEMETRY_CUSTOM_KEY, TELEMETRY_RECORD
+
+    p = Path(path)
+    if not (p / "metadata.yaml").is_file():
+        raise CikanError(f"{p} is not a bag directory (no metadata.yaml)")
+    text = bag_custom_data(p).get(TELEMETRY_CUSTOM_KEY)
+    if text is None:
+        from mcap.reader import make_reader
+
+        for mcap_file in sorted(p.glob("*.mcap")):
+            with mcap_file.open("rb") as f:
+                for record in make_reader(f).iter_metadata():
+                    if record.name == TELEMETRY_RECORD:
+                        text = record.metadata["json"]
+    if text is not None:
+        return {**json.loads(text), "stored": True}
+    cfg = bag_config(p, None)
+    return {**to_json(dictionary(cfg), cfg), "stored": False}

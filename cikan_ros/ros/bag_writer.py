@@ -37,6 +37,13 @@ from mcap.writer import CompressionType, Writer
 
 from ..paths import install_prefixes
 
+#: The name of the telemetry dictionary (:mod:`cikan_ros.telemetry`) in a bag: an MCAP metadata
+#: record of this name (keys ``format``, ``version``, ``json``: the document) and an MCAP attachment
+#: ``<name>.json`` (what Foxglove and the mcap tools show), and metadata.yaml custom_data
+#: ``cikan_ros.telemetry`` (what rosbags reads).
+TELEMETRY_RECORD = "cikan_telemetry"
+TELEMETRY_CUSTOM_KEY = "cikan_ros.telemetry"
+
 #: What metadata.yaml calls the files' distribution.
 ROS_DISTRO = "jazzy"
 _PRIMITIVES = {"bool", "byte", "char", "float32", "float64", "int8", "uint8", "int16", "uint16",
@@ -238,6 +245,17 @@ class BagWriter:
                               "offered_qos_profiles": qtext, "type_description_hash": thash}
         self.counts[topic] = 0
         self.flushed[topic] = 0
+
+    def add_telemetry(self, doc: dict[str, Any]) -> None:
+        """Store the telemetry dictionary document (:func:`cikan_ros.telemetry.to_json`) in the bag
+        (see :data:`TELEMETRY_RECORD`), once, before or among the messages."""
+        text = json.dumps(doc, allow_nan=False, sort_keys=False)
+        self.writer.add_metadata(TELEMETRY_RECORD, {"format": str(doc["format"]),
+                                                    "version": str(doc["version"]), "json": text})
+        self.writer.add_attachment(create_time=0, log_time=0, name=f"{TELEMETRY_RECORD}.json",
+                                   media_type="application/json", data=text.encode())
+        self.custom_data[TELEMETRY_CUSTOM_KEY] = text
+        self.write_metadata()
 
     def write(self, topic: str, data: bytes, log_time_ns: int, publish_time_ns: int | None = None) -> None:
         """Append one serialised message of a registered topic."""

@@ -18,18 +18,23 @@ from typing import Any, Mapping
 import numpy as np
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import AccelStamped
+from geometry_msgs.msg import AccelStamped, Point
 from nav_msgs.msg import Odometry
 from numpy.typing import ArrayLike, NDArray
 from rosgraph_msgs.msg import Clock
-from sensor_msgs.msg import TimeReference
+from sensor_msgs.msg import JointState, TimeReference
+from std_msgs.msg import ColorRGBA
+from visualization_msgs.msg import Marker, MarkerArray
 
 from ..config import Side
 from ..errors import StateError
+from ..scene import Shape
 from ..units import km_to_m, m_to_km, ns_to_seconds, seconds_to_ns
 
 #: Inertial frame of every pose, twist and acceleration in the graph.
 FRAME_ECI = "eci"
+#: The chief's LVLH frame of the scene markers (:mod:`cikan_ros.scene`).
+FRAME_LVLH = "lvlh"
 NS_PER_S = 1_000_000_000
 
 
@@ -245,14 +250,73 @@ def floats(text: str) -> NDArray:
     return np.array([float(w) for w in text.split()])
 
 
-# -- raw CDR ------------------------------------------------------------------------------------
-def cdr_stamp_ns(data: bytes) -> int:
-    """Stamp of a serialised message whose first field is a Time (a Header or rosgraph Clock).
+# -- telemetry and scene -----------------------------------------------------------------------
+def telemetry_msg(keys: list[str], values: ArrayLike, stamp_ns: int) -> JointState:
+    """The telemetry of one step as sensor_msgs/JointState: ``name`` the dictionary's keys,
+    ``position`` the values in the dictionary's units (:mod:`cikan_ros.telemetry`; NaN where a
+    constraint is not evaluated)."""
+    msg = JointState()
+    msg.header.stamp = ns_to_time(stamp_ns)
+    msg.name = list(keys)
+    msg.position = [float(v) for v in np.asarray(values, dtype=float)]
+    return msg
 
-    CDR: 4-byte encapsulation header (byte 1 = 0x01 little-endian), then int32 sec, uint32 nanosec.
+
+_MARKER_TYPES = {"sphere": Marker.SPHERE, "line_strip": Marker.LINE_STRIP,
+                 "triangle_list": Marker.TRIANGLE_LIST, "arrow": Marker.ARROW}
+
+
+def marker_msg(shape: Shape, stamp_ns: int) -> Marker:
+    """visualization_msgs/Marker (m, frame ``lvlh``) of a scene shape (km); persistent (lifetime
+    0): a later marker of the same ``ns``/``id`` replaces it."""
+    m = Marker()
+    m.header.stamp = ns_to_time(stamp_ns)
+    m.header.frame_id = FRAME_LVLH
+    m.ns, m.id, m.type, m.action = shape.ns, int(shape.ident), _MARKER_TYPES[shape.kind], Marker.ADD
+    m.pose.orientation.w = 1.0
+    m.color = ColorRGBA(r=shape.color[0], g=shape.color[1], b=shape.color[2], a=shape.color[3])
+    pts = km_to_m(shape.points)
+    size = float(shape.size) * 1e3
+    if shape.kind == "sphere":
+        m.pose.position.x, m.pose.position.y, m.pose.position.z = (float(v) for v in pts[0])
+        m.scale.x = m.scale.y = m.scale.z = size
+        return m
+    if shape.kind == "arrow":
+        m.scale.x, m.scale.y, m.scale.z = size, 2.0 * size, 3.0 * size
+    elif shape.kind == "line_strip":
+        m.scale.x = size
+    else:
+        m.scale.x = m.scale.y = m.scale.z = 1.0
+    m.points = [Point(x=float(p[0]), y=float(p[1]), z=float(p[2])) for p in pts]
+    return m
+
+
+def markers_msg(shapes: list[Shape], stamp_ns: int) -> MarkerArray:
+    """visualization_msgs/MarkerArray of scene shapes (see :func:`marker_msg`)."""
+    return MarkerArray(markers=[marker_msg(s, stamp_ns) for s in shapes])
+
+
+# -- raw CDR ------------------------------------------------------------------------------------
+#: Types whose serialised form starts with a sequence of stamped messages (not a Time): their
+#: stamp is the first element's (CDR: the uint32 length, then that element's header).
+_SEQUENCE_FIRST = {"visualization_msgs/msg/MarkerArray"}
+
+
+def cdr_stamp_ns(data: bytes, type_name: str = "") -> int:
+    """Stamp of a serialised message whose first field is a Time (a Header or rosgraph Clock), or,
+    for a type of :data:`_SEQUENCE_FIRST` (``type_name``), of its first element.
+
+    CDR: 4-byte encapsulation header (byte 1 = 0x01 little-endian), then int32 sec, uint32 nanosec
+    (after the uint32 sequence length for a sequence; MessageError when it is empty).
     """
-    if len(data) < 12:
+    offset = 4
+    fmt_len = "<I" if len(data) > 1 and data[1] & 1 else ">I"
+    if type_name in _SEQUENCE_FIRST:
+        if len(data) < 8 or struct.unpack_from(fmt_len, data, 4)[0] == 0:
+            raise MessageError(f"serialised {type_name} has no element to take a stamp from")
+        offset = 8
+    if len(data) < offset + 8:
         raise MessageError(f"serialised message of {len(data)} bytes is too short for a stamp")
     fmt = "<iI" if data[1] & 1 else ">iI"
-    sec, nsec = struct.unpack_from(fmt, data, 4)
+    sec, nsec = struct.unpack_from(fmt, data, offset)
     return sec * NS_PER_S + nsec

@@ -33,10 +33,17 @@ TRUTH_ACCEL = "/truth/deputy/accel"
 #: (diagnostic_msgs/DiagnosticStatus, name = peer, message "ready", hardware_id = node name;
 #: latched). The simulator starts the lockstep once every peer of ``graph.peers`` is ready.
 READY = "/graph/ready"
-#: The telemetry of each control step (the dictionary of :mod:`cikan_ros.telemetry`: name[i] the
-#: key, position[i] the value in its unit) and the scene in the chief's LVLH frame (markers).
+#: The telemetry of each control step (sensor_msgs/JointState: name[i] the key of the dictionary
+#: of :mod:`cikan_ros.telemetry`, position[i] its value in its unit), published by the simulator.
 TELEMETRY = "/telemetry"
+#: The scene in the chief's LVLH frame (frame_id ``lvlh``; :mod:`cikan_ros.scene`), published by
+#: the simulator: the deputy and the virtual target every step; the path so far every governor
+#: update period; the cone, the docking port and the approach-velocity sphere at the start and
+#: whenever the port axis has turned by 1 degree in LVLH. Three topics, so that a viewer that
+#: seeks in a bag (it takes the last message of each topic) shows the whole scene.
 SCENE_MARKERS = "/scene/markers"
+SCENE_PATH = "/scene/path"
+SCENE_CONSTRAINTS = "/scene/constraints"
 
 #: /tsg/time_shift source when no decision was made at this step: the last verified shift holds.
 PATH_HOLD = "hold"
@@ -73,12 +80,16 @@ TOPICS: dict[str, Topic] = {t.name: t for t in (
     Topic(CLOCK, "rosgraph_msgs/msg/Clock", "stream", ("sim",), ()),
     Topic(CHIEF_ODOM, "nav_msgs/msg/Odometry", "stream", ("sim",), ("controller",)),
     Topic(DEPUTY_ODOM, "nav_msgs/msg/Odometry", "stream", ("sim",), ("controller",)),
-    Topic(TIME_SHIFT, "sensor_msgs/msg/TimeReference", "stream", ("governor",), ("controller",)),
+    Topic(TIME_SHIFT, "sensor_msgs/msg/TimeReference", "stream", ("governor",), ("controller", "sim")),
     Topic(ACCEL_CMD, "geometry_msgs/msg/AccelStamped", "stream", ("controller",), ("sim",)),
     Topic(DIAGNOSTICS, "diagnostic_msgs/msg/DiagnosticArray", "stream", ("sim", "governor", "controller"), ()),
     Topic(TRUTH_CHIEF, "nav_msgs/msg/Odometry", "stream", ("sim",), ()),
     Topic(TRUTH_DEPUTY, "nav_msgs/msg/Odometry", "stream", ("sim",), ()),
     Topic(TRUTH_ACCEL, "geometry_msgs/msg/AccelStamped", "stream", ("sim",), ()),
+    Topic(TELEMETRY, "sensor_msgs/msg/JointState", "stream", ("sim",), ()),
+    Topic(SCENE_MARKERS, "visualization_msgs/msg/MarkerArray", "stream", ("sim",), ()),
+    Topic(SCENE_PATH, "visualization_msgs/msg/MarkerArray", "stream", ("sim",), ()),
+    Topic(SCENE_CONSTRAINTS, "visualization_msgs/msg/MarkerArray", "stream", ("sim",), ()),
     Topic(GOVERNOR_INFO, "diagnostic_msgs/msg/DiagnosticStatus", "latched", ("governor",), (), recorded=False),
     Topic(READY, "diagnostic_msgs/msg/DiagnosticStatus", "latched", ("recorder", "governor", "controller", "sim"),
           ("sim",), recorded=False),

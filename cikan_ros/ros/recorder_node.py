@@ -1,14 +1,17 @@
 """recorder_node: records the topics of ``recorder.topics`` (default: every topic of the graph), as
 received (raw CDR), to a rosbag2 MCAP bag.
 
-Messages are logged at their own stamp (header.stamp, or the Clock's time): the bag is a
-sim-time record in which the messages of step k share t_k, whatever their arrival order.
+Messages are logged at their own stamp (header.stamp, the Clock's time, or a MarkerArray's first
+marker's): the bag is a sim-time record in which the messages of step k share t_k, whatever
+their arrival order.
 Chunks are flushed every ``recorder.flush_period_s`` (wall) or ``recorder.chunk_bytes``, so a
 crash loses at most the chunk in progress (see :mod:`cikan_ros.ros.bag_writer`). SIGINT/SIGTERM: the
 recorder keeps taking messages until none came for ``recorder.drain_s`` (at most
 :data:`MAX_DRAIN_S`), then closes the bag.
 The governor's announcements (/tsg/governor, latched) go into the bag's metadata (custom_data
 ``cikan_ros.governor``: the governors that flew, in order; ``cikan_ros.governor_announcements``).
+The telemetry dictionary of the mission's configuration (:mod:`cikan_ros.telemetry`) goes into the
+bag when it opens (:meth:`~cikan_ros.ros.bag_writer.BagWriter.add_telemetry`).
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ from .bag_writer import BagWriter, qos_dict
 from .graph import Readiness, qos_for, run_node
 from .graph_spec import GOVERNOR_INFO, MAX_DRAIN_S, TOPIC_TYPES, UTC_FORMAT, message_class, required_publishers
 from .params import NodeSpec, declare_config, declare_parameters, plain
+from ..telemetry import dictionary, to_json
 
 NAME = "recorder_node"
 #: Parameters: the groups recorder and graph of config/nodes.yaml, and the mission configuration
@@ -74,6 +78,7 @@ class RecorderNode(Node):
         """Create the bag and subscribe (called once the node's parameters are checked)."""
         self.bag = BagWriter(self.bag_dir, self.chunk_bytes,
                              {"cikan_ros.config": json.dumps(self.cfg.flat(), sort_keys=True)})
+        self.bag.add_telemetry(to_json(dictionary(self.cfg), self.cfg))
         # As a peer of the graph it reads every topic: the other peers wait for it as a reader of
         # each (graph.required_readers) before they are ready; it writes recorder.topics.
         read = list(TOPIC_TYPES) if "recorder" in self.peers else self.topics
@@ -112,7 +117,7 @@ class RecorderNode(Node):
             qos = [qos_dict(info.qos_profile) for info in self.get_publishers_info_by_topic(topic)]
             self.bag.add_topic(topic, TOPIC_TYPES[topic], qos)
         try:
-            stamp = cv.cdr_stamp_ns(data)
+            stamp = cv.cdr_stamp_ns(data, TOPIC_TYPES[topic])
         except cv.MessageError:
             stamp = time.time_ns()
         self.bag.write(topic, data, stamp)
