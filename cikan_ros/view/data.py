@@ -27,7 +27,7 @@ from ..errors import CikanError
 from ..mission import violation_masks
 from ..montecarlo import load_run_arrays
 from ..scene import port_axis_lvlh, relative_lvlh
-from ..telemetry import FRAME_LVLH, TelemetryPoint, dictionary, values
+from ..telemetry import FRAME_LVLH, TelemetryPoint, dictionary, from_json, values
 from ..tsg import ChiefAnchor, Predictor
 from ..units import KM
 
@@ -83,8 +83,8 @@ def virtual_target(track: Track, predictor: Predictor) -> NDArray:
 
 def violations(cfg: Config, points: Sequence[TelemetryPoint], track: Track, table: NDArray) -> dict[str, NDArray]:
     """Key -> where the point is beyond its limits, of each point with limits: the constraints'
-    points (:data:`JUDGED_BY`) as the metrics judge them, the others by their limits (NaN: not
-    evaluated, never beyond)."""
+    points (:data:`JUDGED_BY`) as the metrics judge them, the others by their limits, from
+    ``table`` (the values of ``points``, a column each; NaN: not evaluated, never beyond)."""
     m = margins(track.x_d, track.x_c, track.u, cfg.constraints, cfg.thrust_limit_kmps2, cfg.side)
     m.h2[-1] = math.nan   # no command is applied at the final instant
     masks = violation_masks(m, cfg, cfg.thrust_limit_kmps2 / cfg.control.u_max_kmps2)
@@ -116,14 +116,17 @@ def plotted(points: Sequence[TelemetryPoint]) -> list[TelemetryPoint]:
 
 
 def payload(cfg: Config, tracks: Sequence[Track], source: str, kind: str, *,
-            complete: bool = True) -> dict[str, Any]:
+            complete: bool = True, stored: Sequence[TelemetryPoint] | None = None) -> dict[str, Any]:
     """The page's data: the scene (m, LVLH), the telemetry dictionary's plotted points (with
-    units and limits), and per run its time (s since the mission start), its LVLH positions, its
-    telemetry values and where each crosses a limit. ``kind``: ``bag``, ``montecarlo`` or
-    ``live``; ``complete``: False while a live mission still flies."""
+    units and limits: ``stored``, the dictionary a bag carries, else the configuration's), and
+    per run its time (s since the mission start), its LVLH positions, its telemetry values and
+    where each crosses a limit. ``kind``: ``bag``, ``montecarlo`` or ``live``; ``complete``:
+    False while a live mission still flies."""
     points = dictionary(cfg)
+    column = {p.key: i for i, p in enumerate(points)}   # the columns of telemetry.values
+    if stored is not None:   # its names, units and limits, for the values computed here
+        points = [p for p in stored if p.key in column]
     shown = plotted(points)
-    column = {p.key: i for i, p in enumerate(points)}
     wanted = [p.key for p in shown] + [p.limit_key for p in shown if p.limit_key]
     single = len(tracks) == 1
     per_run = MAX_POINTS if single else max(MIN_RUN_POINTS, MAX_OVERLAY_POINTS // max(1, len(tracks)))
@@ -131,7 +134,7 @@ def payload(cfg: Config, tracks: Sequence[Track], source: str, kind: str, *,
     runs, reach = [], cfg.mission.dock_distance_km * KM
     for tr in tracks:
         table = values(cfg, tr.x_c, tr.x_d, tr.u, tr.tau)
-        bad = violations(cfg, points, tr, table)
+        bad = violations(cfg, points, tr, table[:, [column[p.key] for p in points]])
         idx = thin(len(tr.t), per_run, np.any(list(bad.values()), axis=0))
         deputy = table[:, [column[k] for k in POSITION_KEYS]]
         reach = max(reach, float(np.nanmax(np.linalg.norm(deputy, axis=1))))
@@ -198,18 +201,26 @@ def run_files(path: Path) -> list[Path]:
     return sorted(path.glob("*/seed_*.json"))
 
 
-def load_bag(path: Path) -> tuple[Config, list[Track]]:
-    """The configuration and the run of a recorded mission; CikanError (one line) for a bag that
-    cannot be read or does not hold a mission."""
+def stored_dictionary(path: Path) -> list[TelemetryPoint]:
+    """The telemetry dictionary a bag carries (or its configuration's, for an older bag)."""
+    from ..ros.bag_reader import bag_telemetry
+
+    return from_json(bag_telemetry(path))
+
+
+def load_bag(path: Path) -> tuple[Config, list[Track], list[TelemetryPoint]]:
+    """The configuration, the run and the telemetry dictionary of a recorded mission; CikanError
+    (one line) for a bag that cannot be read or does not hold a mission."""
     from ..ros.bag_reader import bag_config, bag_governor, mission_from_bag, read_bag
 
     try:
         cfg = bag_config(path, None)
+        points = stored_dictionary(path)
         msgs = read_bag(path)
     except Exception as exc:   # rosbags, mcap, yaml and the file system each raise their own
         raise CikanError(f"{path}: not a readable bag ({type(exc).__name__}: {exc})") from None
     result, _ = mission_from_bag(path, cfg, bag_governor(path), msgs)
-    return cfg, [track_of(result, path.name)]
+    return cfg, [track_of(result, path.name)], points
 
 
 def load_montecarlo(path: Path) -> tuple[Config, list[Track]]:
@@ -240,8 +251,8 @@ def load(path: str | Path) -> dict[str, Any]:
         raise CikanError(f"no such bag or directory: {p}")
     bag = bag_directory(p)
     if bag is not None:
-        cfg, tracks = load_bag(bag)
-        return payload(cfg, tracks, str(bag), "bag")
+        cfg, tracks, points = load_bag(bag)
+        return payload(cfg, tracks, str(bag), "bag", stored=points)
     if p.is_dir() and run_files(p):
         cfg, tracks = load_montecarlo(p)
         return payload(cfg, tracks, str(p), "montecarlo")

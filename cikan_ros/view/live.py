@@ -23,7 +23,7 @@ from ..ros.bag_reader import bag_config, bag_governor, mission_from_bag, sim_sum
 from ..ros.convert import Timeline, time_to_ns
 from ..ros.graph_spec import (ACCEL_CMD, CHIEF_ODOM, DEPUTY_ODOM, DIAGNOSTICS, TIME_SHIFT, TRUTH_ACCEL,
                               TRUTH_CHIEF, TRUTH_DEPUTY)
-from .data import payload, track_of
+from .data import payload, stored_dictionary, track_of
 
 #: What the rebuilt mission reads (mission_from_bag), /clock left out.
 TOPICS = (CHIEF_ODOM, DEPUTY_ODOM, TRUTH_CHIEF, TRUTH_DEPUTY, TIME_SHIFT, ACCEL_CMD, TRUTH_ACCEL, DIAGNOSTICS)
@@ -111,7 +111,8 @@ class BagFollower:
             result, _ = mission_from_bag(self.path, cfg, bag_governor(self.path), msgs)
         except CikanError:
             return None   # no shift yet, or no state yet
-        return payload(cfg, [track_of(result, self.path.name)], str(self.path), "live", complete=self.complete)
+        return payload(cfg, [track_of(result, self.path.name)], str(self.path), "live", complete=self.complete,
+                       stored=stored_dictionary(self.path))
 
 
 #: Niceness of a view process started by ``cikan mission --view``: the graph's nodes come first
