@@ -181,7 +181,6 @@ def test_a_live_mission_in_the_browser(browser_context: Any, ros_env: int, tmp_p
         assert counts and counts[-1] == 121, counts           # t_0 .. t_120, all of them
         assert len(counts) >= 3 and counts == sorted(counts), counts   # it grew as the mission flew
         assert not errors, errors
-        print(f"page counts while flying: {counts}")
     finally:
         proc.terminate()
         proc.wait()
