@@ -3,9 +3,9 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
-EXTRAS := ros,learn,report,dev
+EXTRAS := ros,learn,report,view,dev
 
-.PHONY: install run test test-avx2 bench montecarlo results robustness corners coverage controller-sweep models models-prev scenario-data scenario-models scenario-result scenario-results scenario-index scenario-bench bad-networks clean
+.PHONY: install browser run test test-avx2 bench montecarlo results robustness corners coverage controller-sweep models models-prev scenario-data scenario-models scenario-result scenario-results scenario-index scenario-bench bad-networks clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -17,7 +17,18 @@ install: $(STAMP)
 run: $(STAMP)
 	$(BIN)/cikan mission --governor conventional --bag runs/bags/$$(date -u +%Y%m%dT%H%M%SZ)_conventional
 
-test: $(STAMP)
+# The browser of the view's tests (tests/test_view.py): Debian's chromium, installed with apt-get
+# when it is missing and this is root on a machine with apt-get (CI); otherwise one line, and the
+# browser tests skip.
+CHROMIUM := /usr/bin/chromium
+browser:
+	@if [ -x $(CHROMIUM) ]; then :; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	  { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends chromium >/dev/null; } \
+	  || echo "make browser: apt-get could not install chromium; the browser tests skip"; \
+	else echo "make browser: $(CHROMIUM) missing (install Debian's chromium as root); the browser tests skip"; fi
+
+test: $(STAMP) browser
 	$(BIN)/python -m pytest
 
 # The suite with an AVX2 processor's arithmetic, run on an AVX-512 one (docs/reproducibility.md):

@@ -21,6 +21,7 @@ COMMAND_MODULES = (
     "cikan_ros.commands.mission",
     "cikan_ros.commands.montecarlo",
     "cikan_ros.commands.report",
+    "cikan_ros.commands.view",
     "cikan_ros.commands.bench",
     "cikan_ros.commands.compare",
     "cikan_ros.commands.tube",

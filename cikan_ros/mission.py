@@ -151,6 +151,15 @@ class ClosedLoop(Schedule):
         return ftre_control(pred.gains, float(nu_v), x_d, x_v, self.config.control.u_max_kmps2)
 
 
+def violation_masks(m: Margins, cfg: Config, thrust_limit_factor: float = 1.0) -> tuple[NDArray, NDArray, NDArray]:
+    """Where the plant violates h1, h2 and h3 (three (N,) bool arrays; SPEC §9): normalised h1
+    above ``constraints.plant_h1_tolerance``, h2 (against the thrust limit u_max times
+    ``thrust_limit_factor``) above 1e-12 of that limit, h3 above
+    ``constraints.plant_h3_tolerance_kmps``; where a constraint is not evaluated (NaN), never."""
+    h1_bad, h3_bad = state_violations(m, cfg)
+    return h1_bad, m.h2 > 1e-12 * cfg.control.u_max_kmps2 * thrust_limit_factor, h3_bad
+
+
 @dataclass
 class MissionResult:
     """A whole closed-loop run. Arrays are per control step k = 0 .. K (K = T_sim / T_c)."""
@@ -188,8 +197,7 @@ class MissionResult:
         dist = np.linalg.norm(rel[:, :3], axis=1)
         speed = np.linalg.norm(rel[:, 3:], axis=1)
         m = self.margins
-        h1_bad, h3_bad = state_violations(m, cfg)
-        h2_bad = m.h2 > 1e-12 * cfg.control.u_max_kmps2 * self.thrust_limit_factor
+        h1_bad, h2_bad, h3_bad = violation_masks(m, cfg, self.thrust_limit_factor)
         violations = int(np.count_nonzero(h1_bad | h2_bad | h3_bad))
         between = self.between
         zero_idx = np.flatnonzero(self.tau == 0.0)

@@ -38,7 +38,8 @@ LAYERS: list[dict[str, list[str]]] = [
                            "cikan_ros.learn.cards", "cikan_ros.learn.bench"],
      "ros": ["cikan_ros.ros.*", "cikan_ros.telemetry"]},
     {"nodes": ["sim_node.*", "governor_node.*", "controller_node.*"],
-     "analysis": ["cikan_ros.analysis.*"]},
+     "analysis": ["cikan_ros.analysis.*"],
+     "view": ["cikan_ros.view.*"]},
     {"commands": ["cikan_ros.commands.*", "cikan_ros.cli"]},
 ]
 
@@ -192,9 +193,10 @@ def test_rclpy_only_in_ros_and_the_nodes() -> None:
 
 #: What reads a graph's table or its bags without a running graph: the topic and node table, the
 #: parameter files, the bag reader and writer, the launcher (``cikan mission`` starts the nodes as
-#: processes; it never joins the graph) and analysis/ (``cikan report BAG``).
+#: processes; it never joins the graph), analysis/ (``cikan report BAG``) and view/ (``cikan view``,
+#: which follows a live mission through its bag).
 RCLPY_FREE = ("cikan_ros.ros.graph_spec", "cikan_ros.ros.params", "cikan_ros.ros.bag_reader",
-              "cikan_ros.ros.bag_writer", "cikan_ros.ros.launch", "cikan_ros.analysis")
+              "cikan_ros.ros.bag_writer", "cikan_ros.ros.launch", "cikan_ros.analysis", "cikan_ros.view")
 
 
 def test_table_and_bags_never_load_rclpy() -> None:

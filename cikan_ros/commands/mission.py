@@ -7,7 +7,7 @@ import sys
 from typing import Any
 
 from ..strict_json import dumps
-from . import add_config_args, config_from_args, seed_arg
+from . import add_config_args, config_from_args, int_at_least, seed_arg
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -29,6 +29,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--bag", metavar="DIR", default=None,
                    help="ROS run: record to this bag directory (default: runs/bags/<time>_<governor>); "
                         "not with --offline")
+    p.add_argument("--view", action="store_true",
+                   help="ROS run: follow the mission live in the mission-control view (cikan view BAG "
+                        "--follow, its own process, reading the bag as the recorder flushes it); the "
+                        "view stays after the mission until Ctrl-C")
+    p.add_argument("--view-port", type=int_at_least(0, "--view-port"), default=0, metavar="N",
+                   help="with --view: port on 127.0.0.1 (default: a free one)")
+    p.add_argument("--no-browser", action="store_true",
+                   help="with --view: do not open a browser (one opens only where a desktop session is)")
     add_config_args(p)
     p.set_defaults(func=run)
 
@@ -67,11 +75,14 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--bag records the ROS graph's topics; an offline mission has none to record "
                           "(drop --offline to record it, or keep an offline run's whole record with "
                           "`cikan montecarlo --runs 1 --seed N --out DIR`, which `cikan report` reads)")
+    if args.view and args.offline:
+        raise ConfigError("--view follows the bag of the ROS graph; --offline records none")
     from ..progress import on_terminal
 
     args.governor = args.governor or "conventional"
     cfg = config_from_args(args)
     progress = on_terminal(args.json)
+    view = None
     if args.offline:
         from ..governor import warm_up
         from ..mission import nominal_start, run_mission, sample_start
@@ -101,9 +112,15 @@ def run(args: argparse.Namespace) -> int:
 
             make_governor(args.governor, cfg)  # a bad or foreign model: one line, before any node starts
 
-        metrics = run_ros_mission(cfg, governor=args.governor, seed=args.seed, bag=args.bag,
-                                  config_path=args.config, overrides=args.overrides,
-                                  governor_exec=args.governor_exec, progress=progress)
+        view = start_view(args) if args.view else None
+        try:
+            metrics = run_ros_mission(cfg, governor=args.governor, seed=args.seed, bag=args.bag,
+                                      config_path=args.config, overrides=args.overrides,
+                                      governor_exec=args.governor_exec, progress=progress)
+        except BaseException:
+            if view is not None:
+                view[0].terminate()
+            raise
         metrics.update(seed=args.seed, mode="ros")
         from ..ros.bag_reader import bag_model
 
@@ -118,4 +135,32 @@ def run(args: argparse.Namespace) -> int:
     if metrics.get("lockstep_deadlines"):
         print(f"cikan mission: failed: {metrics['lockstep_deadlines']} wall-clock deadline(s) fired in the "
               "lockstep (a node answered late or not at all; see /diagnostics in the bag)", file=sys.stderr)
+    if view is not None:
+        keep_view(*view)
     return 0 if metrics["success"] else 1
+
+
+def start_view(args: argparse.Namespace) -> tuple[Any, str]:
+    """The view process following the mission's bag (``args.bag`` is set to the default bag if
+    none was given, so the launcher records where the view reads) and its URL."""
+    from ..ros.launch import default_bag_path, exec_governor_name
+    from ..view.live import start_view_process
+
+    if args.bag is None:
+        label = exec_governor_name(args.governor_exec) if args.governor_exec is not None else args.governor
+        args.bag = str(default_bag_path(label))
+    proc, url = start_view_process(args.bag, args.view_port, not args.no_browser)
+    print(f"cikan mission: following the mission at {url}", file=sys.stderr, flush=True)
+    return proc, url
+
+
+def keep_view(proc: Any, url: str) -> None:
+    """Leave the view up after the mission until Ctrl-C (or until it ends), then stop it."""
+    print(f"cikan mission: the view stays at {url} (Ctrl-C ends it)", file=sys.stderr, flush=True)
+    try:
+        proc.wait()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        proc.terminate()
+        proc.wait()

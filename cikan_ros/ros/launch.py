@@ -110,6 +110,12 @@ def exec_command(command: str) -> list[str]:
     return argv
 
 
+def exec_governor_name(command: str) -> str:
+    """The governor name of a mission flown by ``--governor-exec COMMAND`` (the bag's and the
+    metrics')."""
+    return f"exec:{command}"
+
+
 def exec_environment(env: dict[str, str]) -> dict[str, str]:
     """Environment of an external governor: the graph's, without the ROS-wheels bootstrap guard
     (its interpreter, maybe of another venv, sets up its own ROS libraries)."""
@@ -247,7 +253,7 @@ def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | Non
     """
     commands = {"governor": exec_command(governor_exec)} if governor_exec is not None else {}
     if governor_exec is not None:
-        governor = f"exec:{governor_exec}"
+        governor = exec_governor_name(governor_exec)
     bag_path = Path(bag) if bag is not None else default_bag_path(governor)
     if bag_path.exists() and (not bag_path.is_dir() or any(bag_path.iterdir())):
         raise CikanError(f"bag directory {bag_path} exists and is not empty")
