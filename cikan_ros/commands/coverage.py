@@ -29,7 +29,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
     import shlex
     import sys
     from pathlib import Path
@@ -38,6 +37,7 @@ def run(args: argparse.Namespace) -> int:
     from ..coverage import SWEEP, _flight, coverage_tasks, markdown, summarise
     from ..errors import ConfigError
     from ..parallel import ordered_map
+    from ..strict_json import dumps
 
     base = config_from_args(args)
     if not base.tsg.robust:
@@ -66,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
         all_rows += rows
         sections.append((title, summarise(rows)))
     if args.json:
-        print(json.dumps(all_rows, indent=1))
+        print(dumps(all_rows, indent=1))
     else:
         for title, summary in sections:
             print(f"{title}:")

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from . import dumps
+from ..strict_json import dumps
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import argparse
 
-from . import add_config_args, config_from_args, dumps
+from ..strict_json import dumps
+from . import add_config_args, config_from_args
 
 
 def register(sub: argparse._SubParsersAction) -> None:
