@@ -24,7 +24,12 @@ def sections() -> list[Section]:
     from ..learn.bench import learned_section
     from ..ros.bench import ros_section
 
-    return [conventional_section, nominal_section, learned_section, ros_section]
+    def ros_with_view(cfg: Config, states: "BenchStates", repeats: int) -> dict[str, Any]:
+        from ..view.live import start_view_process
+
+        return ros_section(cfg, states, repeats, follow=lambda bag: start_view_process(bag, 0, False)[0])
+
+    return [conventional_section, nominal_section, learned_section, ros_with_view]
 
 
 def run_bench(cfg: Config, n_missions: int = 6, repeats: int = 3) -> dict[str, Any]:

@@ -11,6 +11,9 @@
   update), as governor_node timed it.
 - The same mission once more with the other executor (``ros_single_*``): the comparison behind
   the choice of executor (cikan_ros.ros.graph.make_executor).
+- The same mission once more with the mission-control view following its bag (``ros_view_*``,
+  ``cikan view BAG --follow`` in its own process, as ``cikan mission --view`` starts it): what
+  watching a mission costs it.
 """
 
 from __future__ import annotations
@@ -19,22 +22,33 @@ import os
 import shutil
 import tempfile
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from ..config import Config
 from ..errors import CikanError
 
 
-def lockstep_figures(cfg: Config, executor: str) -> dict[str, Any]:
-    """rtf, step latency and wall times of one mission with every node on ``executor``."""
+#: Starts a process following a bag as it is recorded (the view: cikan_ros.view.live), given
+#: the bag's path; returns the process (something with terminate() and wait()).
+Follower = Callable[[Path], Any]
+
+
+def lockstep_figures(cfg: Config, executor: str, follow: Follower | None = None) -> dict[str, Any]:
+    """rtf, step latency and wall times of one mission with every node on ``executor``, with a
+    ``follow`` process reading its bag when given."""
     from .launch import run_ros_mission
 
     tmp = Path(tempfile.mkdtemp(prefix="cikan_bench_"))
     previous = os.environ.get("CIKAN_ROS_EXECUTOR")
     os.environ["CIKAN_ROS_EXECUTOR"] = executor   # inherited by the node processes
+    follower = None
     try:
+        follower = follow(tmp / "bag") if follow is not None else None
         m = run_ros_mission(cfg, governor="conventional", bag=tmp / "bag")
     finally:
+        if follower is not None:
+            follower.terminate()
+            follower.wait()
         if previous is None:
             os.environ.pop("CIKAN_ROS_EXECUTOR", None)
         else:
@@ -52,9 +66,14 @@ def lockstep_figures(cfg: Config, executor: str) -> dict[str, Any]:
             "mission_wall_s": ros["launch_wall_s"], "mission_success": m["success"]}
 
 
-def ros_section(cfg: Config, _states: Any, _repeats: int) -> dict[str, Any]:
-    """ros_* figures with the chosen executor (EventsExecutor), ros_single_* with the other."""
+def ros_section(cfg: Config, _states: Any, _repeats: int, follow: Follower | None = None) -> dict[str, Any]:
+    """ros_* figures with the chosen executor (EventsExecutor), ros_single_* with the other, and
+    ros_view_* with the chosen one and ``follow`` (the view) reading the bag, when given."""
     events = lockstep_figures(cfg, "events")
     single = lockstep_figures(cfg, "single")
-    return {**{f"ros_{k}": v for k, v in events.items()},
-            **{f"ros_single_{k}": v for k, v in single.items() if k != "mission_success"}}
+    out = {**{f"ros_{k}": v for k, v in events.items()},
+           **{f"ros_single_{k}": v for k, v in single.items() if k != "mission_success"}}
+    if follow is not None:
+        viewed = lockstep_figures(cfg, "events", follow)
+        out.update({f"ros_view_{k}": v for k, v in viewed.items() if k != "mission_success"})
+    return out
