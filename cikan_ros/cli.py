@@ -32,6 +32,7 @@ COMMAND_MODULES = (
     "cikan_ros.commands.models",
     "cikan_ros.commands.replay",
     "cikan_ros.commands.soak",
+    "cikan_ros.commands.profile",
     "cikan_ros.commands.telemetry",
     "cikan_ros.commands.scene",
 )

@@ -196,7 +196,8 @@ def test_rclpy_only_in_ros_and_the_nodes() -> None:
 #: processes; it never joins the graph), analysis/ (``cikan report BAG``) and view/ (``cikan view``,
 #: which follows a live mission through its bag).
 RCLPY_FREE = ("cikan_ros.ros.graph_spec", "cikan_ros.ros.params", "cikan_ros.ros.bag_reader",
-              "cikan_ros.ros.bag_writer", "cikan_ros.ros.launch", "cikan_ros.analysis", "cikan_ros.view")
+              "cikan_ros.ros.bag_writer", "cikan_ros.ros.launch", "cikan_ros.ros.profile", "cikan_ros.analysis",
+              "cikan_ros.view")
 
 
 def test_table_and_bags_never_load_rclpy() -> None:

@@ -36,6 +36,7 @@ from typing import Any, Callable, Iterable
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from ..errors import CikanError, ConfigError
+from .profile import NodeProfile
 from .graph_spec import (ACK_BUDGET_S, CHIEF_ODOM, DEPUTY_ODOM, EXIT_BAD_INPUT, EXIT_NO_PEERS, READY, TIME_SHIFT,
                          TOPICS, expected_readers, expected_writers)
 from .params import command_line_names, parse_node_args, plain, ros_section, unknown_overrides
@@ -383,8 +384,9 @@ def run_node(factory: Callable[[Any], Any], args: list[str] | None = None,
         done = node.done
         # In 0.5-s slices: the EventsExecutor (rclpy 7.1.6 wheels) fires timers only inside a spin
         # with a timeout, and a signal's handler runs between them.
-        while rclpy.ok() and not done.done() and not stopping:
-            executor.spin_until_future_complete(done, timeout_sec=0.5)
+        with NodeProfile(name):  # cikan profile: CIKAN_PROFILE_DIR set (cikan_ros.ros.profile)
+            while rclpy.ok() and not done.done() and not stopping:
+                executor.spin_until_future_complete(done, timeout_sec=0.5)
         code = int(getattr(node, "exit_code", 0))
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

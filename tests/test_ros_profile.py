@@ -1,0 +1,72 @@
+"""cikan profile: a lockstep step's CPU per node process and stage (cikan_ros.ros.profile)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+
+import pytest
+
+from cikan_ros.ros.profile import STAGES, NodeProfile, PROFILE_ENV, node_stages, profile_table, stage_of
+
+
+@pytest.mark.parametrize("filename, function, stage", [
+    ("~", "<built-in method rclpy._rclpy_pybind11.publish>", "publish"),
+    (".venv/lib/python3.11/site-packages/rclpy/publisher.py", "publish", "publish"),
+    ("~", "<built-in method rclpy._rclpy_pybind11.spin_until_future_complete>", "rclpy"),
+    (".venv/lib/python3.11/site-packages/rclpy/executors.py", "_take_subscription", "rclpy"),
+    ("/x/cikan_ros/ros/bag_writer.py", "write", "record"),
+    (".venv/lib/python3.11/site-packages/mcap/writer.py", "add_message", "record"),
+    ("/x/cikan_ros/ros/convert.py", "odom_msg", "messages"),
+    (".venv/lib/python3.11/site-packages/nav_msgs/msg/_odometry.py", "__init__", "messages"),
+    ("/x/cikan_ros/tsg.py", "optimal_shift", "compute"),
+    ("/x/controller_node/node.py", "command", "compute"),
+    ("/usr/lib/python3.11/logging/__init__.py", "info", "other"),
+])
+def test_each_function_belongs_to_one_stage(filename, function, stage):
+    assert stage_of(filename, function) == stage
+
+
+def test_a_profile_splits_the_main_threads_cpu_by_stage(tmp_path, monkeypatch):
+    """A real profile of busy work in this process: its stages sum to what cProfile timed, and
+    the table divides by the steps (microseconds per step)."""
+    monkeypatch.setenv(PROFILE_ENV, str(tmp_path))
+
+    def busy() -> float:
+        t = time.thread_time() + 0.05
+        x = 0.0
+        while time.thread_time() < t:
+            x += sum(i * i for i in range(200))
+        return x
+
+    with NodeProfile("busy_node"):
+        busy()
+    stages = node_stages(tmp_path / "busy_node.prof")
+    assert set(stages) == set(STAGES) and sum(stages.values()) > 0.04
+    table = profile_table(tmp_path, steps=10)
+    row = table["busy_node"]
+    assert row["process"] >= row["main"] > 0.04 / 10 * 1e6 * 0.9
+    assert sum(row[s] for s in STAGES) == pytest.approx(sum(stages.values()) / 10 * 1e6)
+
+
+def test_no_profile_without_the_environment_variable(tmp_path, monkeypatch):
+    monkeypatch.delenv(PROFILE_ENV, raising=False)
+    with NodeProfile("quiet_node"):
+        sum(range(1000))
+    assert not list(tmp_path.iterdir())
+
+
+def test_cikan_profile_reports_every_node_of_the_graph():
+    out = subprocess.run([sys.executable, "-m", "cikan_ros.cli", "profile", "--json",
+                          "--set", "mission.duration_s=600"], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    doc = json.loads(out.stdout)
+    assert doc["steps"] == 60
+    table = doc["us_per_step"]
+    assert set(table) == {"sim_node", "governor_node", "controller_node", "recorder_node"}
+    for row in table.values():
+        assert row["process"] >= row["main"] > 0
+        assert sum(row[s] for s in STAGES) <= row["main"] * 1.05
+    assert table["sim_node"]["publish"] > 0 and table["recorder_node"]["record"] > 0
