@@ -17,6 +17,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
+import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import AccelStamped
 from nav_msgs.msg import Odometry
@@ -60,6 +61,7 @@ class ControllerNode(Node):
         self.lost = False
         self.pending: dict[int, dict[str, Any]] = {}
         self.pub_accel = self.readiness.publisher(AccelStamped, ACCEL_CMD, QOS_STREAM)
+        self.accel_out = cv.accel_msg(np.zeros(3), 0)  # the publisher's own message, filled in place
         self.pub_diag = self.readiness.publisher(DiagnosticArray, DIAGNOSTICS, qos_for(DIAGNOSTICS))
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.deadline = self.create_timer(deadline, self.on_deadline, clock=steady, autostart=False)
@@ -153,7 +155,7 @@ class ControllerNode(Node):
         self.lost_deadline.cancel()
         self.waiting = None
         u = self.loop.command(self.timeline.step(stamp), tau, x_d, x_c)
-        self.pub_accel.publish(cv.accel_msg(u, stamp))
+        self.pub_accel.publish(cv.accel_msg(u, stamp, self.accel_out))
         self.tau = tau
         self.last_stamp = stamp
         for s in [s for s in self.pending if s <= stamp]:

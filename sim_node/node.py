@@ -91,6 +91,11 @@ class SimNode(Node):
         self.pub_truth_chief = self.readiness.publisher(Odometry, TRUTH_CHIEF, QOS_STREAM)
         self.pub_truth_deputy = self.readiness.publisher(Odometry, TRUTH_DEPUTY, QOS_STREAM)
         self.pub_truth_accel = self.readiness.publisher(AccelStamped, TRUTH_ACCEL, QOS_STREAM)
+        # Each publisher's own message, filled in place every step (cv.odom_msg's ``out``).
+        zero = np.zeros(6)
+        self.out = {"clock": cv.clock_msg(0), "truth_chief": cv.odom_msg(zero, 0, "chief"),
+                    "truth_deputy": cv.odom_msg(zero, 0, "deputy"), "chief": cv.odom_msg(zero, 0, "chief"),
+                    "deputy": cv.odom_msg(zero, 0, "deputy"), "truth_accel": cv.accel_msg(zero[:3], 0)}
         self.sub_accel = self.readiness.subscription(AccelStamped, ACCEL_CMD, self.on_accel, QOS_STREAM)
         self.sub_shift = self.readiness.subscription(TimeReference, TIME_SHIFT, self.on_shift, QOS_STREAM)
         self.pub_scene = {TELEMETRY: self.readiness.publisher(JointState, TELEMETRY, QOS_STREAM)}
@@ -129,11 +134,13 @@ class SimNode(Node):
         truth = self.truth
         self.x_c = truth.chief_state(self.k)
         x_seen, cov = truth.measure_deputy(self.k, self.x)
-        self.pub_clock.publish(cv.clock_msg(stamp))
-        self.pub_truth_chief.publish(cv.odom_msg(self.x_c, stamp, "chief"))
-        self.pub_truth_deputy.publish(cv.odom_msg(self.x, stamp, "deputy"))
-        self.pub_chief.publish(cv.odom_msg(truth.measure_chief(self.k), stamp, "chief", 0.0 * cov))
-        self.pub_deputy.publish(cv.odom_msg(x_seen, stamp, "deputy", cov))
+        out = self.out  # each publisher's own message, filled in place (cv.odom_msg)
+        self.pub_clock.publish(cv.clock_msg(stamp, out["clock"]))
+        self.pub_truth_chief.publish(cv.odom_msg(self.x_c, stamp, "chief", out=out["truth_chief"]))
+        self.pub_truth_deputy.publish(cv.odom_msg(self.x, stamp, "deputy", out=out["truth_deputy"]))
+        self.pub_chief.publish(cv.odom_msg(truth.measure_chief(self.k), stamp, "chief", 0.0 * cov,
+                                           out=out["chief"]))
+        self.pub_deputy.publish(cv.odom_msg(x_seen, stamp, "deputy", cov, out=out["deputy"]))
         if self.loop.finished(self.k, self.x, self.x_c, self.stop_on_dock):
             self.finish()
             return
@@ -183,7 +190,7 @@ class SimNode(Node):
             decision = self.k == 0 or self.loop.update_due(self.k)
             (self.latency_update_ms if decision else self.latency_ms).append(ms)
         u = self.truth.applied_thrust(u)  # through the thrusters: the acceleration as applied
-        self.pub_truth_accel.publish(cv.accel_msg(u, self.stamp()))
+        self.pub_truth_accel.publish(cv.accel_msg(u, self.stamp(), self.out["truth_accel"]))
         m = margins(self.x, self.x_c, u, self.cfg.constraints, self.u_limit, self.cfg.side)
         path = self.truth.deputy_path(self.k, self.x, u)
         between = between_violations(self.cfg, path, self.truth.chief_path(self.k))

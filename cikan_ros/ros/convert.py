@@ -54,9 +54,12 @@ def time_to_ns(stamp: Any) -> int:
     return int(stamp.sec) * NS_PER_S + int(stamp.nanosec)
 
 
-def clock_msg(ns: int) -> Clock:
-    """rosgraph_msgs/Clock at absolute time ``ns``."""
-    return Clock(clock=ns_to_time(ns))
+def clock_msg(ns: int, out: Clock | None = None) -> Clock:
+    """rosgraph_msgs/Clock at absolute time ``ns`` (``out``: filled in place and returned)."""
+    if out is None:
+        return Clock(clock=ns_to_time(ns))
+    set_stamp(out.clock, ns)
+    return out
 
 
 class Timeline:
@@ -93,8 +96,13 @@ def _finite(values: NDArray, what: str) -> NDArray:
     return values
 
 
+def set_stamp(stamp: Time, ns: int) -> None:
+    """Set a builtin_interfaces/Time in place to absolute nanoseconds (exact)."""
+    stamp.sec, stamp.nanosec = divmod(int(ns), NS_PER_S)
+
+
 def odom_msg(x_km: ArrayLike, stamp_ns: int, child_frame: str,
-             cov_km: ArrayLike | None = None) -> Odometry:
+             cov_km: ArrayLike | None = None, out: Odometry | None = None) -> Odometry:
     """nav_msgs/Odometry of an ECI state [r (km); v (km/s)]: position in m, velocity in m/s.
 
     The orientation is the identity, so the child frame's axes are ECI's and the twist (expressed
@@ -102,15 +110,23 @@ def odom_msg(x_km: ArrayLike, stamp_ns: int, child_frame: str,
     the state's covariance, written in m^2 and m^2/s^2 into the position block of the pose
     covariance and the linear block of the twist covariance (orientation and angular rate are
     not estimated: their blocks stay 0).
+
+    ``out``: an Odometry to fill in place and return instead of a new one (a publisher's own,
+    reused step after step: rclpy serialises at publish, and building the nested message takes
+    longer than the rest of this function); used for one topic, so that it is always given a
+    covariance or never.
     """
     x_m = km_to_m(x_km)
-    msg = Odometry()
-    msg.header.stamp = ns_to_time(stamp_ns)
-    msg.header.frame_id = FRAME_ECI
-    msg.child_frame_id = child_frame
+    if out is None:
+        msg = Odometry()
+        msg.header.frame_id = FRAME_ECI
+        msg.child_frame_id = child_frame
+        msg.pose.pose.orientation.w = 1.0
+    else:
+        msg = out
+    set_stamp(msg.header.stamp, stamp_ns)
     p = msg.pose.pose.position
     p.x, p.y, p.z = (float(v) for v in x_m[:3])
-    msg.pose.pose.orientation.w = 1.0
     v = msg.twist.twist.linear
     v.x, v.y, v.z = (float(w) for w in x_m[3:])
     if cov_km is not None:
@@ -146,12 +162,16 @@ def state_from_odom(msg: Odometry) -> NDArray:
 
 
 # -- commands -----------------------------------------------------------------------------------
-def accel_msg(u_kmps2: ArrayLike, stamp_ns: int) -> AccelStamped:
-    """geometry_msgs/AccelStamped (linear, m/s^2, ECI) of an acceleration in km/s^2."""
+def accel_msg(u_kmps2: ArrayLike, stamp_ns: int, out: AccelStamped | None = None) -> AccelStamped:
+    """geometry_msgs/AccelStamped (linear, m/s^2, ECI) of an acceleration in km/s^2 (``out``:
+    a publisher's own message, filled in place and returned)."""
     u = km_to_m(u_kmps2)
-    msg = AccelStamped()
-    msg.header.stamp = ns_to_time(stamp_ns)
-    msg.header.frame_id = FRAME_ECI
+    if out is None:
+        msg = AccelStamped()
+        msg.header.frame_id = FRAME_ECI
+    else:
+        msg = out
+    set_stamp(msg.header.stamp, stamp_ns)
     a = msg.accel.linear
     a.x, a.y, a.z = (float(w) for w in u)
     return msg
