@@ -139,3 +139,19 @@ def test_cikan_scene_rebuilds_the_recorded_scene_and_converts_an_old_bag(recorde
         out = subprocess.run([str(CIKAN), "scene", *args], capture_output=True, text=True, timeout=60)
         assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1, out.stderr
     shutil.rmtree(new)
+
+
+def test_the_soak_check_counts_a_lost_telemetry_or_marker_message(recorded: tuple[Path, dict]) -> None:
+    """cikan soak's check (check_messages with the scene) finds every step's telemetry and markers
+    in a recorded bag, and counts one removed from either as lost, at its step."""
+    from cikan_ros.ros.bag_reader import check_messages, read_bag
+
+    bag, _ = recorded
+    steps = round(CFG.mission.duration_s / CFG.control.period_s)
+    msgs = read_bag(bag, scene=True)
+    whole = check_messages(msgs, CFG, steps, scene=True)
+    assert (whole["lost"], whole["duplicated"], whole["off_grid"]) == (0, 0, 0)
+    for topic in ("/telemetry", "/scene/markers"):
+        cut = {t: (v[:7] + v[8:] if t == topic else v) for t, v in msgs.items()}
+        check = check_messages(cut, CFG, steps, scene=True)
+        assert check["lost"] == 1 and f"{topic} 1 (k 7)" in check["lost_on"]

@@ -42,10 +42,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def check_bag(bag: Path, cfg: Any) -> dict[str, Any]:
     """Lost, duplicated and off-grid messages of a recorded mission, per the mission's K steps
-    (``mission.duration_s`` / ``control.period_s``): :func:`cikan_ros.ros.bag_reader.check_messages`."""
+    (``mission.duration_s`` / ``control.period_s``), the telemetry and scene markers included:
+    :func:`cikan_ros.ros.bag_reader.check_messages`."""
     from ..ros.bag_reader import check_messages, read_bag
 
-    return check_messages(read_bag(bag), cfg, round(cfg.mission.duration_s / cfg.control.period_s))
+    return check_messages(read_bag(bag, scene=True), cfg, round(cfg.mission.duration_s / cfg.control.period_s),
+                          scene=True)
 
 
 def run(args: argparse.Namespace) -> int:

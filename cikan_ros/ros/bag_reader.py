@@ -45,8 +45,8 @@ from ..mission import MissionResult, Schedule, audit_shifts
 from ..tsg import Predictor
 from ..units import m_to_km
 from .convert import MessageError, Timeline, accel_from_msg, diagnostic_values, floats, shift_from_msg, time_to_ns
-from .graph_spec import (ACCEL_CMD, CHIEF_ODOM, CLOCK, DEPUTY_ODOM, DIAGNOSTICS, SCENE_TOPICS, TIME_SHIFT,
-                         TRUTH_ACCEL, TRUTH_CHIEF, TRUTH_DEPUTY)
+from .graph_spec import (ACCEL_CMD, CHIEF_ODOM, CLOCK, DEPUTY_ODOM, DIAGNOSTICS, SCENE_MARKERS, SCENE_TOPICS,
+                         TELEMETRY, TIME_SHIFT, TRUTH_ACCEL, TRUTH_CHIEF, TRUTH_DEPUTY)
 
 
 #: Integer values of the simulator's summary record.
@@ -134,27 +134,40 @@ SIM_STEPS = "/diagnostics (sim steps)"
 
 
 def expected_stamps(n_steps: int) -> dict[str, int]:
-    """Topic -> number of steps it carries a message for: the states of t_0..t_K, one shift and
-    one command for each of t_0..t_{K-1}."""
-    states = {t: n_steps + 1 for t in (CLOCK, CHIEF_ODOM, DEPUTY_ODOM, TRUTH_CHIEF, TRUTH_DEPUTY)}
+    """Topic -> number of steps it carries a message for: the states of t_0..t_K, with their
+    telemetry and scene markers, one shift and one command for each of t_0..t_{K-1}."""
+    states = {t: n_steps + 1 for t in (CLOCK, CHIEF_ODOM, DEPUTY_ODOM, TRUTH_CHIEF, TRUTH_DEPUTY,
+                                       TELEMETRY, SCENE_MARKERS)}
     return {**states, TIME_SHIFT: n_steps, ACCEL_CMD: n_steps, TRUTH_ACCEL: n_steps}
 
 
+def _stamp_ns(topic: str, msg: Any) -> int:
+    """The stamp of a recorded message: the clock's, a MarkerArray's first marker's (what the
+    recorder logs it at), else its header's."""
+    if topic == CLOCK:
+        return time_to_ns(msg.clock)
+    if topic == SCENE_MARKERS:
+        return time_to_ns(msg.markers[0].header.stamp)
+    return time_to_ns(msg.header.stamp)
+
+
 def check_messages(msgs: dict[str, list[tuple[int, Any]]], cfg: Config, n_steps: int,
-                   topics: tuple[str, ...] | None = None) -> dict[str, Any]:
+                   topics: tuple[str, ...] | None = None, scene: bool = False) -> dict[str, Any]:
     """Lost, duplicated and off-grid messages of a recorded lockstep mission of ``n_steps`` steps:
     each topic of ``topics`` (default all of :func:`expected_stamps`) holds one message for each
     of its stamps, none twice, none off the T_c grid, each logged at its own stamp; the
-    simulator's /diagnostics holds one step record for each step. ``lost_on``: where."""
+    simulator's /diagnostics holds one step record for each step. ``lost_on``: where. With
+    ``scene`` the default topics include the telemetry and the scene markers (``msgs`` read by
+    ``read_bag(path, scene=True)``)."""
     tl = Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
     expected = expected_stamps(n_steps)
     lost = dup = off = total = 0
     where: dict[str, list[int]] = {}
-    for topic in topics or tuple(expected):
+    for topic in topics or tuple(t for t in expected if scene or t not in SCENE_TOPICS):
         n = expected[topic]
         ks = []
         for log_time, m in msgs.get(topic, []):
-            stamp = time_to_ns(m.clock if topic == CLOCK else m.header.stamp)
+            stamp = _stamp_ns(topic, m)
             try:
                 k = tl.step(stamp)
             except MessageError:
