@@ -156,8 +156,9 @@ def test_soak_and_mission_check_every_bag(ros_env: int, tmp_path: Path) -> None:
     (row,) = result["table"]
     assert row["steps"] == 30 and row["lost"] == row["duplicated"] == row["off_grid"] == 0
     cfg = load_config(**{"mission.duration_s": 310.0})   # a mission one step longer than the bag
-    # one per topic: the 5 state topics, the shift, the command, the applied thrust, the sim step record
-    assert check_bag(tmp_path / "soak" / "run_000", cfg)["lost"] == 9
+    # one per topic: the 5 state topics, the telemetry and the scene markers, the shift, the command,
+    # the applied thrust, the sim step record
+    assert check_bag(tmp_path / "soak" / "run_000", cfg)["lost"] == 11
     # What `cikan mission` does with the same bag: it flew K = 30 steps, all recorded.
     bag = tmp_path / "soak" / "run_000"
     msgs = read_bag(bag)
