@@ -113,12 +113,11 @@ def held_shift_coverage(cfg: Config, seed: int, governor: str = "conventional") 
         return Coverage(seed, corner, tau, math.nan, math.nan, -1, -1, -1, math.nan, math.nan, -1,
                         violations)
     term = int(np.flatnonzero(trace[:, 8] == 1.0)[0])
-    n = term
-    err_p = np.linalg.norm(result.x_d[:n, :3] - trace[:n, :3], axis=1)
-    err_v = np.linalg.norm(result.x_d[:n, 3:] - trace[:n, 3:6], axis=1)
+    err_p = np.linalg.norm(result.x_d[:term, :3] - trace[:term, :3], axis=1)
+    err_v = np.linalg.norm(result.x_d[:term, 3:] - trace[:term, 3:6], axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
-        pos, pos_at = _max_at(err_p / trace[:n, 6])
-        vel, vel_at = _max_at(err_v / trace[:n, 7])
+        pos, pos_at = _max_at(err_p / trace[:term, 6])
+        vel, vel_at = _max_at(err_v / trace[:term, 7])
     # After it: the virtual target the controller tracks (its own anchor on the measured chief).
     loop = ClosedLoop(pred)
     seen_c = result.x_c if result.x_c_seen is None else result.x_c_seen
@@ -134,16 +133,6 @@ def held_shift_coverage(cfg: Config, seed: int, governor: str = "conventional") 
     worst_at = bp_at if not math.isfinite(bv) or (math.isfinite(bp) and bp >= bv) else bv_at
     return Coverage(seed, corner, tau, pos, vel, pos_at, vel_at, term, bp, bv, worst_at, violations,
                     float(err_p[0] / trace[0, 6]))
-
-
-def coverage_rows(cfg: Config, seeds: list[int], corner_names: list[str] | None,
-                  governor: str = "conventional") -> list[Coverage]:
-    """:func:`held_shift_coverage` for every seed and corner (None: the random draws of the seeds)."""
-    rows = []
-    for name in corner_names or [None]:
-        c = cfg if name is None else cfg.replace(**{"truth.draw": "corner", "truth.corner": name})
-        rows.extend(held_shift_coverage(c, s, governor) for s in seeds)
-    return rows
 
 
 #: The scenarios and sides of the sweep (``cikan coverage --sweep``, ``make coverage``).

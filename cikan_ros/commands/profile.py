@@ -25,7 +25,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import os
     import shlex
     import shutil
     import sys
@@ -33,23 +32,18 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ..errors import CikanError
-    from ..ros.launch import run_ros_mission
+    from ..ros.launch import node_environment, run_ros_mission
     from ..ros.profile import PROFILE_ENV, markdown, profile_table
     from ..strict_json import dumps
 
     cfg = config_from_args(args)
     tmp = Path(tempfile.mkdtemp(prefix="cikan_profile_"))
-    previous = os.environ.get(PROFILE_ENV)
-    os.environ[PROFILE_ENV] = str(tmp / "prof")   # inherited by the node processes
     try:
-        m = run_ros_mission(cfg, governor=args.governor, seed=args.seed, bag=tmp / "bag")
+        with node_environment(PROFILE_ENV, str(tmp / "prof")):
+            m = run_ros_mission(cfg, governor=args.governor, seed=args.seed, bag=tmp / "bag")
         steps = round(cfg.mission.duration_s / cfg.control.period_s)
         table = profile_table(tmp / "prof", steps)
     finally:
-        if previous is None:
-            os.environ.pop(PROFILE_ENV, None)
-        else:
-            os.environ[PROFILE_ENV] = previous
         shutil.rmtree(tmp, ignore_errors=True)
     if not table:
         raise CikanError("no node wrote a profile (were the nodes started from this installation?)")

@@ -18,7 +18,6 @@
 
 from __future__ import annotations
 
-import os
 import shutil
 import tempfile
 from pathlib import Path
@@ -36,23 +35,18 @@ Follower = Callable[[Path], Any]
 def lockstep_figures(cfg: Config, executor: str, follow: Follower | None = None) -> dict[str, Any]:
     """rtf, step latency and wall times of one mission with every node on ``executor``, with a
     ``follow`` process reading its bag when given."""
-    from .launch import run_ros_mission
+    from .launch import node_environment, run_ros_mission
 
     tmp = Path(tempfile.mkdtemp(prefix="cikan_bench_"))
-    previous = os.environ.get("CIKAN_ROS_EXECUTOR")
-    os.environ["CIKAN_ROS_EXECUTOR"] = executor   # inherited by the node processes
     follower = None
     try:
-        follower = follow(tmp / "bag") if follow is not None else None
-        m = run_ros_mission(cfg, governor="conventional", bag=tmp / "bag")
+        with node_environment("CIKAN_ROS_EXECUTOR", executor):
+            follower = follow(tmp / "bag") if follow is not None else None
+            m = run_ros_mission(cfg, governor="conventional", bag=tmp / "bag")
     finally:
         if follower is not None:
             follower.terminate()
             follower.wait()
-        if previous is None:
-            os.environ.pop("CIKAN_ROS_EXECUTOR", None)
-        else:
-            os.environ["CIKAN_ROS_EXECUTOR"] = previous
         shutil.rmtree(tmp, ignore_errors=True)
     ros = m["ros"]
     missing = [k for k in ("rtf", "step_ms_p50", "step_ms_p99", "update_step_ms_max", "wall_s")

@@ -25,10 +25,11 @@ import sys
 import tempfile
 import threading
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any, Callable, Iterable, Iterator
 
 import yaml
 
@@ -185,6 +186,22 @@ class Graph:
         # each waits for its readers' acknowledgements before it ends (graph.wait_acknowledged)
         self.stop(["sim", "governor", "controller"], timeout_s=ACK_BUDGET_S + 10.0)
         self.stop(["recorder"], timeout_s=MAX_DRAIN_S + 30.0)   # it drains all it holds, then closes
+
+
+@contextmanager
+def node_environment(name: str, value: str) -> Iterator[None]:
+    """Set the environment variable ``name`` for the node processes the block launches (they
+    inherit this process's environment), and restore it after: e.g. the executor a benchmark
+    mission runs (``CIKAN_ROS_EXECUTOR``) or where its nodes write their profiles."""
+    previous = os.environ.get(name)
+    os.environ[name] = value
+    try:
+        yield
+    finally:
+        if previous is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = previous
 
 
 def default_bag_path(governor: str) -> Path:
