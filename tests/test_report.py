@@ -185,7 +185,7 @@ def test_rmse_of_known_errors(campaign, tmp_path):
 
     runs = tmp_path / "conventional"
     shutil.copytree(campaign / "conventional", runs)
-    assert rmse_against_optimal(_runs(runs))[:2] == (0.0, 0.0)
+    assert rmse_against_optimal(_runs(runs)) == (0.0, 0.0)
     npz = sorted(runs.glob("seed_*.npz"))[0]
     with np.load(npz) as data:
         a = {k: data[k] for k in data.files}
@@ -198,9 +198,33 @@ def test_rmse_of_known_errors(campaign, tmp_path):
     np.savez_compressed(npz, **{**a, "update_tau": tau})
     n_all = sum(len(np.load(f)["update_tau"]) for f in runs.glob("seed_*.npz"))
     n_active = sum(int(np.sum(np.load(f)["update_tau_prev"] < 0)) for f in runs.glob("seed_*.npz"))
-    rmse_all, rmse_active, _ = rmse_against_optimal(_runs(runs))
+    rmse_all, rmse_active = rmse_against_optimal(_runs(runs))
     assert rmse_active == pytest.approx(math.sqrt(0.25 / n_active), rel=1e-9)
     assert rmse_all == pytest.approx(math.sqrt(1.69 / n_all), rel=1e-9)
+
+
+def test_nn_accept_is_the_share_of_active_updates_the_network_decided(campaign, tmp_path):
+    """Counted by hand from the stored decisions: updates with tau_prev != 0 whose path is "nn",
+    over all such updates, pooled over the campaign's runs (Table 2 and the scenario index), and
+    each run's own share in its metrics (the campaign summary's mean)."""
+    from cikan_ros.analysis.table import scenarios_index
+
+    accepted = active = 0
+    shares = []
+    for npz in sorted((campaign / "cikan").glob("seed_*.npz")):
+        with np.load(npz) as a:
+            run = [str(p) for p, prev in zip(a["update_path"], a["update_tau_prev"]) if prev != 0.0]
+        accepted += run.count("nn")
+        active += len(run)
+        shares.append(run.count("nn") / len(run))
+        stored = json.loads(npz.with_suffix(".json").read_text())["metrics"]["nn_accept_rate"]
+        assert stored == pytest.approx(shares[-1], rel=1e-12)
+    assert active > 0 and 0 < accepted < active
+    row = build_table(campaign, with_rmse=False)[1]
+    assert row["nn_accept_rate"] == pytest.approx(accepted / active, rel=1e-12)
+    shutil.copytree(campaign, tmp_path / "paper-behind")   # the index reads a directory of campaigns
+    index = scenarios_index(tmp_path)
+    assert f"| paper | behind | cikan | 3 |" in index and f"| {accepted / active:.3f} |" in index
 
 
 def test_report_from_a_montecarlo_directory(campaign, tmp_path, drawn):

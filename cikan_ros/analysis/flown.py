@@ -64,7 +64,8 @@ def flown_rows(cfg: Config, governor: str, model: str | None = None,
                nn_accept_rate: float | None = None) -> list[tuple[str, str]]:
     """(label, text) rows of what a run or campaign flew: scenario, side, truth, Verify mode,
     governor (with its model), the docking test and, where a learned governor flew, the
-    network's acceptance (``nn_accept_rate``: the consulted proposals that passed Verify)."""
+    network's acceptance (``nn_accept_rate``: the share of the active updates answered with its
+    proposal, passed by Verify)."""
     m = cfg.mission
     rows = [("scenario", f"{cfg.scenario.name}: {cfg.scenario.description}"),
             ("approach", approach_text(cfg)),

@@ -97,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
         x0 = nominal_start(pred) if args.seed is None else sample_start(pred, args.seed)
         result = run_mission(governor, x0, args.seed, progress=progress)
         metrics = result.metrics()
-        if governor.name != "conventional":  # fraction of consulted proposals that passed Verify
+        if governor.name != "conventional":  # share of the active updates the network decided
             from ..learn.governor import nn_accept_rate
             metrics["nn_accept_rate"] = nn_accept_rate(result.updates)
         if getattr(governor, "foreign", None):

@@ -423,14 +423,18 @@ class LearnedGovernor:
 
 
 def nn_accept_rate(updates: Iterable[UpdateRecord]) -> float | None:
-    """Fraction of the updates that consulted the network (every path but "zero", "initial" and
-    "search", where it was not trusted) whose proposal passed Verify and was returned (path
-    "nn"). None when the network was never consulted.
+    """The network's acceptance: the share of the active updates (tau_{k-1} != 0, SPEC §9) whose
+    answer is the network's proposal, passed by Verify (path "nn"). The one definition of the
+    per-run metric, Table 2, the campaign summaries and the scenario index. None without an
+    active update.
 
-    A proposal that passed Verify and was then snapped to 0 by the zero test counts as not
-    accepted (its path is "verify-zero"); this happens at most once per mission."""
-    consulted = [r.path for r in updates if r.path not in (PATH_ZERO, PATH_INITIAL) + SEARCHED]
-    return consulted.count(PATH_NN) / len(consulted) if consulted else None
+    An update where the network was not trusted (path "search" or "stall"), held tau_{k-1}
+    ("keep") or searched after its candidates failed counts as not accepted: what the figure
+    says is how often the network, not the search, decided. A proposal that passed Verify and
+    was then snapped to 0 by the zero test counts as not accepted (its path is "verify-zero");
+    this happens at most once per mission."""
+    paths = [r.path for r in updates if r.active]
+    return paths.count(PATH_NN) / len(paths) if paths else None
 
 
 def train_target_args(cfg: Config) -> str:
