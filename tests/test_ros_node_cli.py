@@ -120,3 +120,21 @@ def test_lone_node_says_what_it_waits_for_and_gives_up(ros_env: int) -> None:
     assert "not ready: " in line and "/chief/odom: 0 of 1 readers matched (expected controller)" in line
     assert "governor: no announcement on /graph/ready" in line and "controller: no announcement" in line
     assert "mission complete" not in log and "no command for" not in log   # no fake mission
+
+
+def test_a_node_that_hangs_while_it_ends_says_where_and_exits(ros_env: int) -> None:
+    """SIGINT to a node whose close() never returns: after the stop watchdog (shortened to 1 s in
+    that process) it exits with code 1 and its stderr holds the stack of the hang, close() in
+    it, instead of waiting for the launcher's SIGKILL."""
+    import signal
+
+    proc = subprocess.Popen([sys.executable, str(ROOT / "tests" / "hanging_node.py")], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    try:
+        assert proc.stdout.readline().strip() == "spinning"
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=120)   # its close() alone would take 600 s
+    finally:
+        proc.kill()
+    assert proc.returncode == 1, err
+    assert "Timeout" in err and "in close" in err and "hanging_node.py" in err

@@ -27,6 +27,7 @@ QoS, chosen on purpose:
 
 from __future__ import annotations
 
+import faulthandler
 import os
 import sys
 import time
@@ -37,6 +38,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from ..errors import CikanError, ConfigError
 from .profile import NodeProfile
+from . import graph_spec
 from .graph_spec import (ACK_BUDGET_S, CHIEF_ODOM, DEPUTY_ODOM, EXIT_BAD_INPUT, EXIT_NO_PEERS, READY, TIME_SHIFT,
                          TOPICS, expected_readers, expected_writers)
 from .params import command_line_names, parse_node_args, plain, ros_section, unknown_overrides
@@ -330,7 +332,9 @@ def run_node(factory: Callable[[Any], Any], args: list[str] | None = None,
     when its ``done`` future completes (one is attached if the node has none), or on SIGINT or
     SIGTERM (``signal_handlers``; else the node installs its own, as the recorder does to drain);
     then it waits for its readers' acknowledgements (:func:`wait_acknowledged`), calls the node's
-    ``close()`` if it has one, and destroys it. A node's ``open()``, if it has one, runs once the
+    ``close()`` if it has one, and destroys it; with ``signal_handlers``, should that take more
+    than :data:`~cikan_ros.ros.graph_spec.STOP_WATCHDOG_S`, the stack of every thread goes to
+    stderr and the process exits with code 1. A node's ``open()``, if it has one, runs once the
     parameters are checked. Returns the exit code: the node's ``exit_code`` (0 unless it gave
     up), :data:`EXIT_BAD_INPUT` for bad input (unknown parameter, bad value, unreadable params
     file or model) with one line on stderr.
@@ -360,11 +364,22 @@ def run_node(factory: Callable[[Any], Any], args: list[str] | None = None,
     except RuntimeError as exc:  # rclpy's RCLError / UnknownROSArgsError: a malformed --ros-args part
         return bad_input(_rcl_message(exc))
     stopping: list[int] = []
+
+    def watch_the_stop() -> None:
+        # graph_spec.STOP_WATCHDOG_S read now, so a test can shorten it in its own process
+        if signal_handlers:
+            faulthandler.dump_traceback_later(graph_spec.STOP_WATCHDOG_S, exit=True)
+
     if signal_handlers:
         import signal
 
+        def on_signal(signum: int, _frame: Any) -> None:
+            if not stopping:
+                watch_the_stop()
+            stopping.append(signum)
+
         for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, lambda signum, _frame: stopping.append(signum))
+            signal.signal(sig, on_signal)
     node = executor = None
     code = 0
     try:
@@ -393,6 +408,8 @@ def run_node(factory: Callable[[Any], Any], args: list[str] | None = None,
     except (CikanError, ParameterException) as exc:
         code = bad_input(str(exc))
     finally:
+        if not stopping:
+            watch_the_stop()   # the mission ended: the node ends from here on its own
         if node is not None:
             if rclpy.ok():
                 wait_acknowledged(node)
@@ -407,6 +424,7 @@ def run_node(factory: Callable[[Any], Any], args: list[str] | None = None,
         # The participant goes now, telling the others (their writers stop waiting on this
         # process's readers at once), not at the lease's end: end_process skips the destructors.
         context.destroy()
+    faulthandler.cancel_dump_traceback_later()
     if exit_process:   # the node executables: the process ends here (see end_process)
         end_process(code)
     return code

@@ -165,6 +165,14 @@ EXIT_NO_PEERS = 1
 #: when its lease ends.
 ACK_BUDGET_S = 5.0
 
+#: A node (one that ends on run_node's own SIGINT/SIGTERM handling) that has not ended this long
+#: (wall) after it was asked to, or after its mission ended, writes the stack of every thread to
+#: its log and exits with code 1 (:func:`cikan_ros.ros.graph.run_node`, by ``faulthandler``,
+#: which works while a C call holds the GIL): the launcher, which waits ACK_BUDGET_S + 10 s
+#: before its SIGKILL, then reports where it hung instead of a bare -9 (seen once in six loaded
+#: runs of the suite, a governor that did not end, not reproduced since).
+STOP_WATCHDOG_S = ACK_BUDGET_S + 8.0
+
 #: On SIGINT/SIGTERM the recorder drains until no message came for ``recorder.drain_s``, at most
 #: this long (wall). Its producers have stopped by then, so the stream ends; a recorder starved
 #: of CPU may be far behind it, and what it still holds in its readers is part of the mission
