@@ -213,7 +213,8 @@ bad-networks: $(STAMP)
 	$(BIN)/cikan report $(BAD)/mc --tables-only --out docs/results/bad_networks \
 		--title "Networks that do not fit, under the keep rule: Table 2 starts, $(ROBUST_RUNS) runs"
 
-# cikan bench per scenario and side (the JSON of each in docs/results/scenarios/bench/):
+# cikan bench per scenario, side and Verify mode (the JSON of each in docs/results/scenarios/bench/:
+# <scenario>-<side>.json nominal, <scenario>-<side>-robust.json robust Verify in the realistic truth):
 # BENCH_MISSIONS missions' update states each (GEO's 24-h missions have ~1,000 active updates).
 BENCH_MISSIONS ?= 5
 scenario-bench: $(STAMP)
@@ -221,4 +222,6 @@ scenario-bench: $(STAMP)
 	for s in $(SCENARIOS); do for a in $(APPROACHES); do \
 	  $(BIN)/cikan bench --scenario $$s --set mission.approach=$$a --missions $(BENCH_MISSIONS) --json \
 	    > docs/results/scenarios/bench/$$s-$$a.json || exit 1; \
+	  $(BIN)/cikan bench --scenario $$s --set mission.approach=$$a --truth realistic --robust \
+	    --missions $(BENCH_MISSIONS) --json > docs/results/scenarios/bench/$$s-$$a-robust.json || exit 1; \
 	done; done

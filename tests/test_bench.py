@@ -101,16 +101,31 @@ def test_realistic_robust_learned_section(realistic, tmp_path):
     assert "learned_models_missing" not in out
     for name in LEARNED_NAMES:
         for k in ("speedup_mean", "speedup_worst", "verify_calls_mean", "nn_accept_rate",
-                  "rmse_tau_s", "mission_speedup_mean", "search_rate"):
+                  "rmse_tau_s", "mission_speedup_mean", "mission_speedup_worst", "mission_verify_calls_mean",
+                  "search_rate", "mission_nn_accept_rate"):
             assert math.isfinite(out[f"{name}_{k}"]), (name, k)
-    # the scenario index's speed table: one row per model, the figures of the bench file
-    (tmp_path / "paper-behind.json").write_text(json.dumps(out))
+        # one start here: its mission is the worst and the mean alike
+        assert out[f"{name}_mission_speedup_worst"] == pytest.approx(out[f"{name}_mission_speedup_mean"])
+        assert 0.0 <= out[f"{name}_mission_nn_accept_rate"] <= 1.0 - out[f"{name}_search_rate"] + 1e-12
+    # the scenario index's speed table: one row per model, as flown first, the Verify mode read
+    # from the file
+    (tmp_path / "paper-behind-robust.json").write_text(json.dumps(out))
     rows = bench_index(tmp_path).splitlines()[2:]
-    assert [r.split(" | ")[2] for r in rows] == list(LEARNED_NAMES)
+    assert [r.split(" | ")[3] for r in rows] == list(LEARNED_NAMES)
     cikan = rows[0].strip("| ").split(" | ")
-    assert cikan[:2] == ["paper", "behind"]
-    assert cikan[4] == f"{out['cikan_speedup_mean']:.2f} / {out['cikan_speedup_worst']:.2f}"
-    assert cikan[7] == f"{out['cikan_search_rate']:.1%}"
+    assert cikan[:3] == ["paper", "behind", "robust (realistic)"]
+    assert cikan[4] == f"{out['cikan_mission_speedup_mean']:.2f} / {out['cikan_mission_speedup_worst']:.2f}"
+    assert cikan[6] == f"{out['cikan_search_rate']:.1%}"
+    assert cikan[8] == f"{out['cikan_speedup_mean']:.2f} / {out['cikan_speedup_worst']:.2f}"
+    from cikan_ros.commands.bench import report_tables
+    from rich.console import Console
+
+    console = Console(record=True, width=250)
+    for table in report_tables(out):
+        console.print(table)
+    text = console.export_text()
+    assert text.index("Whole missions as flown") < text.index("Per update") < text.index("every other figure")
+    assert "cikan_mission_speedup_mean" not in text and "conventional_update_ms_p99" in text
     (tmp_path / "leo-ahead.json").write_text("{not json")
     with pytest.raises(CikanError, match="leo-ahead.json"):
         bench_index(tmp_path)

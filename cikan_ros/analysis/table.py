@@ -321,32 +321,40 @@ def scenarios_index(root: str | Path) -> str:
 
 
 def bench_index(root: str | Path) -> str:
-    """Markdown: the speed figures of each ``cikan bench --json`` output ``<scenario>-<side>.json``
-    under ``root`` (``make scenario-bench``), one row per learned model: the per-update speed-up
-    against the conventional TSG on the same states in the same run (mean and worst; the network
-    trusted), Verify calls per update, and whole missions as flown (trust and stall rule
-    included): their active-update speed-up and the share of updates answered by searching."""
+    """Markdown: the speed figures of each ``cikan bench --json`` output under ``root`` (``make
+    scenario-bench``: ``<scenario>-<side>.json``, and ``<scenario>-<side>-robust.json`` under
+    robust Verify; the Verify mode and truth are read from the file), one row per learned model.
+    Whole missions as flown first (trust, audits and the stall rule included): the active-update
+    speed-up against the conventional TSG's missions from the same starts (mean, and the worst
+    single mission), Verify calls per active update (the conventional TSG's beside), the share
+    of updates answered by searching and the network's acceptance; then, the network trusted,
+    the per-update speed-up on the benchmark's states (mean / worst) and the conventional
+    update's mean time."""
     from ..registry import LEARNED_NAMES
 
-    lines = ["| scenario | side | model | conventional update ms | update speed-up mean / worst "
-             "| Verify calls mean (conventional) | mission speed-up as flown | searching |",
-             "|" + "---|" * 8]
+    lines = ["| scenario | side | Verify | model | mission speed-up mean / worst | Verify calls per active "
+             "update (conventional) | searching | NN accept | per update, trusted: speed-up mean / worst "
+             "| conventional update ms |", "|" + "---|" * 10]
     files = sorted(Path(root).glob("*.json"))
     if not files:
         raise CikanError(f"no cikan bench JSON file in {root}")
     for f in files:
-        scenario, _, side = f.stem.rpartition("-")
+        stem = f.stem.removesuffix("-robust")
+        scenario, _, side = stem.rpartition("-")
         try:
             b = json.loads(f.read_text())
         except (OSError, ValueError) as exc:
             raise CikanError(f"cannot read bench file {f}: {exc}") from None
+        verify = f"robust ({b.get('truth', 'nominal')})" if b.get("robust") else "nominal"
         for m in LEARNED_NAMES:
             if f"{m}_speedup_mean" not in b:
                 continue
             lines.append(
-                f"| {scenario} | {side} | {m} | {_fmt(b.get('learned_conventional_update_ms_mean'), '.3f')} "
+                f"| {scenario} | {side} | {verify} | {m} "
+                f"| {_fmt(b.get(f'{m}_mission_speedup_mean'), '.2f')} / {_fmt(b.get(f'{m}_mission_speedup_worst'), '.2f')} "
+                f"| {_fmt(b.get(f'{m}_mission_verify_calls_mean'), '.2f')} "
+                f"({_fmt(b.get('mission_conventional_verify_calls_mean'), '.2f')}) "
+                f"| {_fmt(b.get(f'{m}_search_rate'), '.1%')} | {_fmt(b.get(f'{m}_mission_nn_accept_rate'), '.1%')} "
                 f"| {_fmt(b[f'{m}_speedup_mean'], '.2f')} / {_fmt(b.get(f'{m}_speedup_worst'), '.2f')} "
-                f"| {_fmt(b.get(f'{m}_verify_calls_mean'), '.2f')} ({_fmt(b.get('conventional_verify_calls_mean'), '.1f')}) "
-                f"| {_fmt(b.get(f'{m}_mission_speedup_mean'), '.2f')} "
-                f"| {_fmt(b.get(f'{m}_search_rate'), '.1%')} |")
+                f"| {_fmt(b.get('learned_conventional_update_ms_mean'), '.3f')} |")
     return "\n".join(lines) + "\n"

@@ -65,12 +65,67 @@ def run(args: argparse.Namespace) -> int:
         print(dumps(figures))
     else:
         from rich.console import Console
-        from rich.table import Table
 
-        table = Table(title="cikan bench", show_header=True)
-        table.add_column("figure")
-        table.add_column("value", justify="right")
-        for k, v in figures.items():
-            table.add_row(k, f"{v:.4g}" if isinstance(v, float) else str(v))
-        Console().print(table)
+        console = Console()
+        for table in report_tables(figures):
+            console.print(table)
     return 0
+
+
+#: (column, figure suffix, format) of the learned governors' tables: whole missions as flown
+#: first, then the per-update figures with the network trusted.
+AS_FLOWN = (("active update ms", "_mission_update_ms_mean", ".3f"),
+            ("speed-up mean", "_mission_speedup_mean", ".2f"),
+            ("worst mission", "_mission_speedup_worst", ".2f"),
+            ("Verify calls / update", "_mission_verify_calls_mean", ".2f"),
+            ("searching", "_search_rate", ".1%"),
+            ("NN accept", "_mission_nn_accept_rate", ".1%"))
+PER_UPDATE = (("update ms mean", "_update_ms_mean", ".3f"), ("update ms max", "_update_ms_max", ".3f"),
+              ("speed-up mean", "_speedup_mean", ".2f"), ("speed-up worst", "_speedup_worst", ".2f"),
+              ("Verify calls mean", "_verify_calls_mean", ".2f"), ("NN accept", "_nn_accept_rate", ".1%"),
+              ("RMSE tau (s)", "_rmse_tau_s", ".3g"))
+
+
+def report_tables(figures: dict[str, Any]) -> list[Any]:
+    """The human report of ``cikan bench``: whole missions as flown (the conventional TSG's row,
+    then each learned model's), the learned models' per-update figures with the network trusted,
+    then every other figure by name."""
+    from rich.table import Table
+
+    from ..registry import LEARNED_NAMES
+
+    models = [m for m in LEARNED_NAMES if f"{m}_mission_speedup_mean" in figures]
+    used: set[str] = set()
+
+    def cell(key: str, spec: str) -> str:
+        used.add(key)
+        v = figures.get(key)
+        return "-" if v is None else format(v, spec) if isinstance(v, (int, float)) else str(v)
+
+    tables = []
+    if models:
+        flown = Table(title="Whole missions as flown (active updates; trust, audits and stall rule included)")
+        flown.add_column("governor")
+        for col, _, _ in AS_FLOWN:
+            flown.add_column(col, justify="right")
+        flown.add_row("conventional", cell("mission_conventional_update_ms_mean", ".3f"), "1.00", "1.00",
+                      cell("mission_conventional_verify_calls_mean", ".2f"), "-", "-")
+        for m in models:
+            flown.add_row(m, *(cell(m + suffix, spec) for _, suffix, spec in AS_FLOWN))
+        per = Table(title="Per update on the benchmark's states, the network trusted")
+        per.add_column("governor")
+        for col, _, _ in PER_UPDATE:
+            per.add_column(col, justify="right")
+        per.add_row("conventional", cell("learned_conventional_update_ms_mean", ".3f"),
+                    cell("learned_conventional_update_ms_max", ".3f"), "1.00", "1.00",
+                    cell("conventional_verify_calls_mean", ".2f"), "-", "-")
+        for m in models:
+            per.add_row(m, *(cell(m + suffix, spec) for _, suffix, spec in PER_UPDATE))
+        tables += [flown, per]
+    rest = Table(title="cikan bench: every other figure", show_header=True)
+    rest.add_column("figure")
+    rest.add_column("value", justify="right")
+    for k, v in figures.items():
+        if k not in used:
+            rest.add_row(k, f"{v:.4g}" if isinstance(v, float) else str(v))
+    return tables + [rest]

@@ -26,8 +26,10 @@ conventional TSG and in the same run, under the default update rule (``learned.a
   timed update. What missions cost as flown, trust included: ``<m>_mission_update_ms_mean``
   (CPU time of the active updates of the governor's own missions from the benchmark's starts),
   ``<m>_mission_speedup_mean`` against the conventional TSG's missions from the same starts,
-  flown in turn with them, and ``<m>_search_rate``: the share of those updates answered by
-  searching (paths "search" and "stall");
+  flown in turn with them, ``<m>_mission_speedup_worst`` (the worst single mission),
+  ``<m>_mission_verify_calls_mean``, ``<m>_search_rate``: the share of those updates answered by
+  searching (paths "search" and "stall"), and ``<m>_mission_nn_accept_rate``
+  (:func:`mission_figures`); ``cikan bench`` shows these first;
 - ``dataset_labels_per_s``: label generation rate of ``cikan dataset`` in this process (one core,
   kernels warm), over a fixed set of missions.
 """
@@ -168,28 +170,48 @@ def learned_section(cfg: Config, states: BenchStates, repeats: int) -> dict[str,
 
 
 def mission_figures(conventional: Any, governors: list[Any], states: BenchStates) -> dict[str, Any]:
-    """Active-update CPU time of whole missions from the benchmark's starts (nominal start, then
-    seeds 1, 2, ...; truth seed = start seed), each learned governor flown in turn with the
-    conventional TSG, start by start: what the keep rule's trust costs as flown."""
+    """Whole missions as flown, trust, audits and stall rule included: the active updates of
+    missions from the benchmark's starts (nominal start, then seeds 1, 2, ...; truth seed = start
+    seed), each learned governor flown in turn with the conventional TSG, start by start.
+
+    ``mission_conventional_update_ms_mean`` and ``..._verify_calls_mean``: the conventional
+    TSG's active updates (CPU time, Verify calls); per governor ``<m>``: its
+    ``_mission_update_ms_mean``, ``_mission_speedup_mean`` (conventional mean over its mean,
+    all active updates of all starts pooled), ``_mission_speedup_worst`` (the lowest of the same
+    ratio start by start: the worst mission), ``_mission_verify_calls_mean`` (per active update),
+    ``_search_rate`` (share of its active updates answered by searching: paths "search" and
+    "stall") and ``_mission_nn_accept_rate`` (share answered with the network's proposal,
+    :func:`cikan_ros.learn.governor.nn_accept_rate`, pooled)."""
     from ..mission import run_mission
     from .governor import SEARCHED
 
-    cpu: dict[str, list[float]] = {g.name: [] for g in [conventional] + governors}
-    searched: dict[str, int] = {g.name: 0 for g in governors}
+    names = [conventional.name] + [g.name for g in governors]
+    cpu: dict[str, list[list[float]]] = {n: [] for n in names}       # per start: active update CPU (s)
+    calls: dict[str, list[int]] = {n: [] for n in names}
+    paths: dict[str, list[str]] = {n: [] for n in names}
     seeds = [s for s in [None] + list(range(1, states.n_missions)) if s not in states.infeasible_seeds]
     for seed, x0 in zip(seeds, states.starts):
         for gov in [conventional] + governors:
             gov.anchor.current, gov.anchor.re_anchors = gov.anchor.base, 0
             res = run_mission(gov, x0, seed)
             active = [u for u in res.updates if u.active]
-            cpu[gov.name] += [u.cpu_s for u in active]
-            if gov is not conventional:
-                searched[gov.name] += sum(u.path in SEARCHED for u in active)
-    conv = float(np.mean(cpu[conventional.name]))
-    out: dict[str, Any] = {"mission_conventional_update_ms_mean": conv * 1e3}
+            cpu[gov.name].append([u.cpu_s for u in active])
+            calls[gov.name] += [u.verify_calls for u in active]
+            paths[gov.name] += [u.path for u in active]
+
+    def mean(per_start: list[list[float]]) -> float:
+        return float(np.mean([c for start in per_start for c in start]))
+
+    conv = mean(cpu[conventional.name])
+    out: dict[str, Any] = {"mission_conventional_update_ms_mean": conv * 1e3,
+                           "mission_conventional_verify_calls_mean": float(np.mean(calls[conventional.name]))}
     for gov in governors:
-        mean = float(np.mean(cpu[gov.name]))
-        out[f"{gov.name}_mission_update_ms_mean"] = mean * 1e3
-        out[f"{gov.name}_mission_speedup_mean"] = conv / mean
-        out[f"{gov.name}_search_rate"] = searched[gov.name] / len(cpu[gov.name])
+        g = gov.name
+        out[f"{g}_mission_update_ms_mean"] = mean(cpu[g]) * 1e3
+        out[f"{g}_mission_speedup_mean"] = conv / mean(cpu[g])
+        out[f"{g}_mission_speedup_worst"] = min(float(np.mean(c) / np.mean(m))
+                                                for c, m in zip(cpu[conventional.name], cpu[g]) if c and m)
+        out[f"{g}_mission_verify_calls_mean"] = float(np.mean(calls[g]))
+        out[f"{g}_search_rate"] = sum(p in SEARCHED for p in paths[g]) / len(paths[g])
+        out[f"{g}_mission_nn_accept_rate"] = paths[g].count(PATH_NN) / len(paths[g])
     return out
