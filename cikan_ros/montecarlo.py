@@ -61,13 +61,17 @@ def run_paths(out_dir: str | Path, governor: str, seed: int) -> tuple[Path, Path
     return base.with_suffix(".json"), base.with_suffix(".npz")
 
 
-def save_run(res: MissionResult, seed: int, json_path: Path, npz_path: Path) -> dict[str, Any]:
+def save_run(res: MissionResult, seed: int, json_path: Path, npz_path: Path,
+             foreign: str | None = None) -> dict[str, Any]:
     """Write a run's metrics (JSON) and arrays (npz); return the metrics (with ``nn_accept_rate``
-    where a learned governor flew, as ``cikan mission`` reports it)."""
+    where a learned governor flew, and ``foreign_model``, what its model was made for when it was
+    flown with ``learned.foreign_model``, as ``cikan mission`` reports them)."""
     metrics = res.metrics()
     metrics["seed"] = seed
     if res.governor != "conventional":
         metrics["nn_accept_rate"] = nn_accept_rate(res.updates)
+    if foreign:
+        metrics["foreign_model"] = foreign
     json_path.parent.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(
         npz_path, t=res.t, x_d=res.x_d, x_c=res.x_c, u=res.u, tau=res.tau,
@@ -123,7 +127,8 @@ def run_one(task: RunTask) -> dict[str, Any]:
         gov = process_governor(task.config_json, task.governor)
         x0 = sample_start(gov.predictor, task.seed)
         truth = Truth(config_from_flat(flat), task.seed)   # the run's draws (or its corner)
-        return save_run(run_mission(gov, x0, task.seed, truth), task.seed, json_path, npz_path)
+        return save_run(run_mission(gov, x0, task.seed, truth), task.seed, json_path, npz_path,
+                        getattr(gov, "foreign", None))
     except (NoFeasibleShiftError, UnstableLoopError) as exc:
         # Robust Verify refuses the start (no feasible shift) or the declared bounds (no tube):
         # a result of the campaign, not a failure of it.

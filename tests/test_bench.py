@@ -96,9 +96,16 @@ def test_realistic_robust_learned_section(realistic, tmp_path):
     from cikan_ros.learn.bench import learned_section
 
     cfg, states = realistic
+    # the shipped models learned nominal Verify's labels: refused under robust Verify ...
+    refused = learned_section(cfg, states, 1)
+    assert len(refused["learned_models_missing"]) == len(LEARNED_NAMES)
+    assert all("trained on labels of nominal Verify" in m for m in refused["learned_models_missing"])
+    # ... and flown when explicitly allowed, each named foreign in the report
+    cfg = cfg.replace(**{"learned.foreign_model": True})
     out = conventional_section(cfg, states, 1)
     out.update(learned_section(cfg, states, 1))
     assert "learned_models_missing" not in out
+    assert sorted(out["learned_foreign_models"]) == sorted(LEARNED_NAMES)
     for name in LEARNED_NAMES:
         for k in ("speedup_mean", "speedup_worst", "verify_calls_mean", "nn_accept_rate",
                   "rmse_tau_s", "mission_speedup_mean", "mission_speedup_worst", "mission_verify_calls_mean",
@@ -111,7 +118,7 @@ def test_realistic_robust_learned_section(realistic, tmp_path):
     # from the file
     (tmp_path / "paper-behind-robust.json").write_text(json.dumps(out))
     rows = bench_index(tmp_path).splitlines()[2:]
-    assert [r.split(" | ")[3] for r in rows] == list(LEARNED_NAMES)
+    assert [r.split(" | ")[3] for r in rows] == [f"{m} (foreign)" for m in LEARNED_NAMES]
     cikan = rows[0].strip("| ").split(" | ")
     assert cikan[:3] == ["paper", "behind", "robust (realistic)"]
     assert cikan[4] == f"{out['cikan_mission_speedup_mean']:.2f} / {out['cikan_mission_speedup_worst']:.2f}"

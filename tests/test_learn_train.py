@@ -51,6 +51,9 @@ def test_resume_continues_exactly(data_path: Path, tmp_path: Path) -> None:
     assert card["training"]["cpu_budget"]["wall_s"] > 0
     assert card["versions"]["torch"] == torch.__version__
     assert card["parameters"]["trainable"] == arch.n_params()
+    # the labels' Verify, named in the card: this dataset's nominal Verify and paper controller
+    assert card["labels"] == {"tsg.robust": False, "control.q_diag": [10.0, 10.0, 10.0, 1.0, 1.0, 1.0],
+                              "control.r_diag": [1.0, 1.0, 1.0]}
 
 
 def test_losses_in_the_card_are_the_papers_definition(data_path: Path, tmp_path: Path) -> None:

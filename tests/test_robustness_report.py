@@ -15,8 +15,9 @@ from cikan_ros.montecarlo import run_campaign, summarise
 
 def campaign(root: Path, robust: bool, scale: float, paper_controller: bool = False) -> Path:
     extra = {"control.robust_r_diag": [1.0, 1.0, 1.0]} if paper_controller else {}
+    # the shipped ReLU learned nominal Verify's labels: under robust Verify it flies as foreign
     cfg = load_config(**{**truth_overrides("realistic"), "tsg.robust": robust, "truth.scale": scale,
-                         "mission.duration_s": 3600.0, **extra})
+                         "mission.duration_s": 3600.0, "learned.foreign_model": robust, **extra})
     r_weight = 1.0 if paper_controller or not robust else cfg.control.robust_r_diag[0]
     out = root / f"{'robust' if robust else 'nominal'}-r{r_weight:g}-s{scale:g}"
     run_campaign(cfg, ["conventional", "relu"], 3, 10, out, progress=False)

@@ -220,10 +220,10 @@ def test_models_are_per_scenario_and_side(tmp_path: Path, capsys) -> None:
     with pytest.raises(ModelFileError, match="trained for scenario 'paper', approach 'behind'"):
         make_governor("cikan", cfg)
     gov = make_governor("cikan", cfg.replace(**{"learned.foreign_model": True}))
-    assert gov.foreign == "trained for scenario 'paper', approach 'behind'"
+    assert gov.foreign == "trained for scenario 'paper', approach 'behind', not scenario 'paper', approach 'ahead'"
     assert main(["mission", "--offline", "--json", "--seed", "1", "--governor", "cikan",
                  "--set", f"scenario.models_dir={tmp_path}", "--set", "mission.approach=ahead",
                  "--set", "learned.foreign_model=true"]) == 0
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert out["foreign_model"] == "trained for scenario 'paper', approach 'behind'"
+    assert out["foreign_model"] == gov.foreign
     assert out["violations"] == 0 and out["success"]

@@ -63,7 +63,13 @@ def test_mission_summary_names_what_flew():
 
 
 def test_learned_mission_summary_names_its_model_and_acceptance():
+    """A shipped model (nominal Verify's labels) under robust Verify: refused with one line and
+    exit code 2; flown when allowed, its summary names it foreign, with its acceptance."""
     flown = ["--offline", "--seed", "3", "--governor", "cikan", "--truth", "realistic", "--robust", *SHORT]
+    refused = cikan("mission", *flown)
+    assert refused.returncode == 2 and len(refused.stderr.strip().splitlines()) == 1
+    assert "trained on labels of nominal Verify (controller R = 1), not of robust Verify" in refused.stderr
+    flown += ["--set", "learned.foreign_model=true"]
     out = cikan("mission", *flown)
     js = cikan("mission", *flown, "--json")
     assert out.returncode in (0, 1) and js.returncode in (0, 1), out.stderr + js.stderr
@@ -72,6 +78,8 @@ def test_learned_mission_summary_names_its_model_and_acceptance():
     rate = json.loads(js.stdout)["nn_accept_rate"]
     assert r["network acceptance"] == f"{rate:.3f} (nn_accept_rate)"
     assert r["Verify"] == "robust (constraints tightened by the truth's bounds)"
+    assert r["model"].startswith("FOREIGN: trained on labels of nominal Verify")
+    assert json.loads(js.stdout)["foreign_model"].startswith("trained on labels of nominal Verify")
 
 
 def test_montecarlo_summary_names_what_flew_in_one_unit(tmp_path):

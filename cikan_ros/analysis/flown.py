@@ -76,6 +76,9 @@ def flown_rows(cfg: Config, governor: str, model: str | None = None,
                              "end, τ = 0, no violation")]
     if nn_accept_rate is not None and math.isfinite(nn_accept_rate):
         rows.append(("network acceptance", f"{nn_accept_rate:.3f} (nn_accept_rate)"))
+    if cfg.learned.foreign_model and governor != "conventional":
+        rows.append(("foreign models", "allowed (learned.foreign_model): a model made for another scenario, "
+                                       "side or Verify flies (each run's foreign_model says what it was made for)"))
     return rows
 
 

@@ -329,7 +329,8 @@ def bench_index(root: str | Path) -> str:
     single mission), Verify calls per active update (the conventional TSG's beside), the share
     of updates answered by searching and the network's acceptance; then, the network trusted,
     the per-update speed-up on the benchmark's states (mean / worst) and the conventional
-    update's mean time."""
+    update's mean time. A model flown with ``learned.foreign_model`` (made for another Verify,
+    as the shipped ones are under robust Verify) is marked "(foreign)"."""
     from ..registry import LEARNED_NAMES
 
     lines = ["| scenario | side | Verify | model | mission speed-up mean / worst | Verify calls per active "
@@ -346,11 +347,12 @@ def bench_index(root: str | Path) -> str:
         except (OSError, ValueError) as exc:
             raise CikanError(f"cannot read bench file {f}: {exc}") from None
         verify = f"robust ({b.get('truth', 'nominal')})" if b.get("robust") else "nominal"
+        foreign = b.get("learned_foreign_models") or {}
         for m in LEARNED_NAMES:
             if f"{m}_speedup_mean" not in b:
                 continue
             lines.append(
-                f"| {scenario} | {side} | {verify} | {m} "
+                f"| {scenario} | {side} | {verify} | {m}{' (foreign)' if m in foreign else ''} "
                 f"| {_fmt(b.get(f'{m}_mission_speedup_mean'), '.2f')} / {_fmt(b.get(f'{m}_mission_speedup_worst'), '.2f')} "
                 f"| {_fmt(b.get(f'{m}_mission_verify_calls_mean'), '.2f')} "
                 f"({_fmt(b.get('mission_conventional_verify_calls_mean'), '.2f')}) "

@@ -30,6 +30,9 @@ conventional TSG and in the same run, under the default update rule (``learned.a
   ``<m>_mission_verify_calls_mean``, ``<m>_search_rate``: the share of those updates answered by
   searching (paths "search" and "stall"), and ``<m>_mission_nn_accept_rate``
   (:func:`mission_figures`); ``cikan bench`` shows these first;
+- ``learned_foreign_models``: the models flown with ``learned.foreign_model`` (made for another
+  scenario, side or Verify: :func:`cikan_ros.learn.governor.load_learned_governor`) and why;
+  without it such models are refused and listed in ``learned_models_missing``;
 - ``dataset_labels_per_s``: label generation rate of ``cikan dataset`` in this process (one core,
   kernels warm), over a fixed set of missions.
 """
@@ -145,6 +148,9 @@ def learned_section(cfg: Config, states: BenchStates, repeats: int) -> dict[str,
             govs_other.append(load_learned_governor(name, pred_other))
         except ModelFileError as exc:
             missing.append(f"{name}: {exc}")
+            continue
+        if govs[-1].foreign:   # flown with learned.foreign_model: what it was made for, in the report
+            out.setdefault("learned_foreign_models", {})[name] = govs[-1].foreign
     results = interleaved_times([ConventionalGovernor(pred)] + govs + govs_other, states, repeats)
     conv_walls, conv_taus = results[0][0], results[0][1]
     tau_prev = np.array([s.tau_prev for s in states.updates])

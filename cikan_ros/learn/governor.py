@@ -67,7 +67,7 @@ from ..units import ns_to_seconds, seconds_to_ns as to_ns
 from .arch import FAMILIES, NumpyNet, log_shift_kernel
 from .errors import ModelFileError
 from .features import FEATURE_CODES
-from .modelfile import CARD, LoadedModel, load_model, model_scenario, scenario_model_dir
+from .modelfile import CARD, LoadedModel, label_mismatch, load_model, model_scenario, scenario_model_dir
 
 #: ln|τ| above this (|τ| > ~1.4e17 s) is treated like a non-finite output: out of range.
 MAX_LOG_SHIFT = 40.0
@@ -449,9 +449,10 @@ def train_target_args(cfg: Config) -> str:
 def load_learned_governor(name: str, predictor: Predictor) -> LearnedGovernor:
     """The learned governor of a shipped family (``cikan``, ``grbf``, ``rswaf``, ``relu``,
     ``gelu``: the scenario's model for the approach side, ``scenario.models_dir``/<name>[-ahead])
-    or of a model directory/file. A model whose card names another scenario or side is refused
-    unless ``learned.foreign_model`` (then :attr:`LearnedGovernor.foreign` says what it was
-    trained for). Raises ModelFileError."""
+    or of a model directory/file. A model whose card names another scenario or side, or labels of
+    another Verify (:func:`~cikan_ros.learn.modelfile.label_mismatch`: nominal labels flown under
+    robust Verify, another truth scale or controller) is refused unless ``learned.foreign_model``
+    (then :attr:`LearnedGovernor.foreign` says what it was trained for). Raises ModelFileError."""
     cfg = predictor.config
     family = name in FAMILIES
     if family:
@@ -466,13 +467,16 @@ def load_learned_governor(name: str, predictor: Predictor) -> LearnedGovernor:
         model = load_model(name)
     trained = model_scenario(model.card)
     wanted = {"name": cfg.scenario.name, "approach": cfg.mission.approach}
-    foreign = None
+    reasons = []
     if trained != wanted:
-        foreign = f"trained for scenario {trained['name']!r}, approach {trained['approach']!r}"
-        if not cfg.learned.foreign_model:
-            raise ModelFileError(
-                f"model {model.path} was {foreign}, not scenario {wanted['name']!r}, approach "
-                f"{wanted['approach']!r}: set learned.foreign_model=true to fly it anyway")
+        reasons.append(f"trained for scenario {trained['name']!r}, approach {trained['approach']!r}, not "
+                       f"scenario {wanted['name']!r}, approach {wanted['approach']!r}")
+    labels = label_mismatch(model.card, cfg.flat())
+    if labels is not None:
+        reasons.append(labels)
+    foreign = "; ".join(reasons) or None
+    if foreign is not None and not cfg.learned.foreign_model:
+        raise ModelFileError(f"model {model.path} was {foreign}: set learned.foreign_model=true to fly it anyway")
     label = name if family else f"{model.arch.family}:{Path(model.path).name}"
     gov = LearnedGovernor.from_model(model, predictor, label)
     gov.foreign = foreign

@@ -124,6 +124,55 @@ def check_dataset_scenario(meta: Mapping[str, Any], path: str, scenario: str, ap
                            "the dataset's --scenario and --set mission.approach")
 
 
+#: Beyond the scenario and side, what decides a label tau* under robust Verify (flat configuration
+#: keys): the zeta interval and the truth's declared bounds, which size the tube and choose the
+#: prediction's gravity. The truth a dataset's missions flew under nominal Verify moves its
+#: states, not its labels.
+ROBUST_LABEL_KEYS = ("tsg.robust_zeta_s", "truth.name", "truth.scale", "truth.gravity",
+                     "truth.thrust_bias_max", "truth.thrust_pointing_max_deg", "truth.disturbance_max_kmps2",
+                     "truth.nav_pos_floor_km", "truth.nav_pos_range_fraction", "truth.nav_vel_floor_kmps",
+                     "truth.nav_vel_range_fraction_per_s", "truth.nav_rate_per_s", "truth.nav_model",
+                     "truth.nav_update_s")
+
+
+def label_config(flat: Mapping[str, Any]) -> dict[str, Any]:
+    """What a label tau* was computed with, from a flat configuration (a dataset's, a card's, a
+    mission's; keys absent from an older one take the defaults it was made with: nominal Verify):
+    the Verify mode (``tsg.robust``), the LQ weights of the controller that Verify predicts
+    (``control.q_diag`` and ``control.r_diag``, or ``control.robust_r_diag`` under robust Verify:
+    ``config.control_config``) and, under robust Verify, :data:`ROBUST_LABEL_KEYS`."""
+    robust = bool(flat.get("tsg.robust", False))
+    r_key = "control.robust_r_diag" if robust else "control.r_diag"
+    out: dict[str, Any] = {"tsg.robust": robust, "control.q_diag": flat.get("control.q_diag"),
+                           r_key: flat.get(r_key)}
+    if robust:
+        out.update({k: flat.get(k) for k in ROBUST_LABEL_KEYS})
+    return out
+
+
+def describe_labels(labels: Mapping[str, Any]) -> str:
+    """One phrase for :func:`label_config`: "nominal Verify (controller R = 1)" or "robust Verify
+    (truth realistic at scale 1.0, controller R = 1e+07)"."""
+    robust = labels["tsg.robust"]
+    r = labels.get("control.robust_r_diag" if robust else "control.r_diag") or [math.nan]
+    if not robust:
+        return f"nominal Verify (controller R = {float(r[0]):g})"
+    return (f"robust Verify (truth {labels.get('truth.name')} at scale {labels.get('truth.scale')}, "
+            f"controller R = {float(r[0]):g})")
+
+
+def label_mismatch(card: Mapping[str, Any], flat: Mapping[str, Any]) -> str | None:
+    """None when the model of ``card`` was trained on labels of the Verify a flight of configuration
+    ``flat`` runs, else what differs, in words (the keys that differ named)."""
+    made, flown = label_config(card.get("config") or {}), label_config(flat)
+    if made == flown:
+        return None
+    text = f"trained on labels of {describe_labels(made)}, not of {describe_labels(flown)}"
+    if made["tsg.robust"] != flown["tsg.robust"]:
+        return text
+    return text + f" (differs: {', '.join(sorted(k for k in made if made[k] != flown[k]))})"
+
+
 def model_scenario(card: Mapping[str, Any]) -> dict[str, str]:
     """``{"name": scenario, "approach": side}`` a model card declares (cards written before
     scenarios existed: the paper's, from behind; their dataset says so)."""

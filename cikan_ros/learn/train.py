@@ -24,7 +24,7 @@ from .dataset import SPLITS, XC_COLS, XD_COLS, read_parquet
 from .errors import DatasetError, ModelFileError
 from .features import features, fit_normalisation
 from .loss import cinn_log_loss, cinn_log_loss_np
-from .modelfile import card_scenario, library_versions, save_model
+from .modelfile import card_scenario, label_config, library_versions, save_model
 from .models import TimeShiftNet
 from .schedule import ExpHyperbolicLR
 
@@ -291,6 +291,7 @@ def train(arch: Arch, data: Data, cfg: TrainConfig, out: str | Path | None,
         meta = {k: v for k, v in data.meta.items() if k != "config"}
         card = {"name": name or arch.family, "family": arch.family,
                 "scenario": card_scenario(data.meta),
+                "labels": label_config(data.meta.get("config") or {}),
                 "dataset": {"file": Path(data.path).name, **meta, "train_labels_used": n_train},
                 "config": data.meta.get("config"),
                 "losses": losses, "training": training, "versions": library_versions(),
