@@ -8,6 +8,8 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from cikan_ros.config import load_config, scenario_overrides
 from cikan_ros.learn.dataset import (COLUMNS, XD_COLS, DatasetSpec, generate, read_parquet,
@@ -37,6 +39,28 @@ def test_columns_labels_and_splits(local) -> None:
     assert not (missions["train"] & missions["val"]) and not (missions["train"] & missions["test"]) \
         and not (missions["val"] & missions["test"])
     assert meta["split_labels"] == {s: int((df["split"] == s).sum()) for s in ("train", "val", "test")}
+    assert meta["split_missions"] == {s: len(missions[s]) for s in ("train", "val", "test")}
+
+
+@given(draw=st.lists(st.sampled_from(["train", "val", "test"]), min_size=0, max_size=80),
+       least=st.integers(1, 12))
+def test_val_and_test_get_their_missions_from_the_last_train_missions(draw: list[str], least: int) -> None:
+    """top_up_splits: val and test each end with at least min(least, n // 4) missions; a split
+    that had them keeps its draw; only train missions move, the highest-numbered first."""
+    from cikan_ros.learn.dataset import top_up_splits
+
+    drawn = dict(enumerate(draw))
+    out = top_up_splits(drawn, least)
+    want = min(least, len(draw) // 4)
+    count = {sp: sum(v == sp for v in out.values()) for sp in ("train", "val", "test")}
+    moved = [m for m in drawn if out[m] != drawn[m]]
+    assert all(drawn[m] == "train" for m in moved)
+    for sp in ("val", "test"):
+        before = sum(v == sp for v in drawn.values())
+        assert count[sp] >= before and (count[sp] == before if before >= want else count[sp] <= want)
+        assert count[sp] >= want or count["train"] == 0   # short only when no train mission was left
+    train_left = [m for m in drawn if out[m] == "train"]
+    assert not moved or not train_left or max(train_left) < min(moved)
 
 
 def test_labels_are_pi_star_at_the_recorded_states(local, predictor) -> None:

@@ -29,6 +29,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="largest start spread sigma [km] (default 1.5 x mission.mc_sigma_km: 15 km)")
     p.add_argument("--val-fraction", type=float, default=0.05, help="fraction of missions for val")
     p.add_argument("--test-fraction", type=float, default=0.05, help="fraction of missions for test")
+    p.add_argument("--min-split-missions", type=int, default=8,
+                   help="fewest missions in val and in test each, up to a quarter of the missions (long "
+                        "missions give few per dataset)")
     p.add_argument("--governor", default="conventional", metavar="NAME",
                    help="governor flying the missions (default conventional); another one gives "
                         "on-policy labels: pi* solved at the states it visited, from its own tau_prev")
@@ -50,7 +53,8 @@ def run(args: argparse.Namespace) -> int:
     lo, hi = scenario_sigma_km(cfg)
     spec = DatasetSpec(seed=args.seed, sigma_min_km=lo if args.sigma_min is None else args.sigma_min,
                        sigma_max_km=hi if args.sigma_max is None else args.sigma_max,
-                       val_fraction=args.val_fraction, test_fraction=args.test_fraction)
+                       val_fraction=args.val_fraction, test_fraction=args.test_fraction,
+                       min_split_missions=args.min_split_missions)
     import os
 
     workers = args.workers if args.workers is not None else (os.cpu_count() or 1)
