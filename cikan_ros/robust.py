@@ -485,9 +485,11 @@ def gain_margin(orbit: KeplerOrbit, cfg: ControlConfig, tol: float = 1e-4) -> fl
 def ancillary_start(rp: NDArray, rng: float) -> tuple[float, float, float, float, float, float]:
     """The ancillary tube at sample 0, the measured state at range rng (km): e_0 = -delta_0, so
     (rho, sigma) = (b_p, b_v) and the two recursions' C-weighted states (R1, S1, R2, S2) are C0
-    times the transient -(I - G) delta_0 and C0 times delta_0."""
-    bp = rp[R_NPF] + rp[R_NPG] * rng
-    bv = rp[R_NVF] + rp[R_NVG] * rng
+    times the transient -(I - G) delta_0 and C0 times delta_0. The bounds are taken at the
+    largest true range the measured one allows, r <= (rng + floor) / (1 - fraction)."""
+    true_rng = (rng + rp[R_NPF]) / max(1.0 - rp[R_NPG], 1e-9)
+    bp = rp[R_NPF] + rp[R_NPG] * true_rng
+    bv = rp[R_NVF] + rp[R_NVG] * true_rng
     zp = rp[RA_HPP] * bp + rp[RA_HPV] * bv
     zv = rp[RA_HVP] * bp + rp[RA_HVV] * bv
     r1 = rp[RA_C0PP] * zp + rp[RA_C0PV] * zv
