@@ -152,7 +152,7 @@ class TSGConfig:
     #: ``ancillary_r_diag``, which must never saturate. Read only under ``tsg.robust``.
     tube: str = "ball"
     ancillary_gamma: float = 0.7
-    ancillary_r_diag: tuple[float, ...] = (1e9, 1e9, 1e9)
+    ancillary_r_diag: tuple[float, ...] = (1e10, 1e10, 1e10)
 
     def __post_init__(self) -> None:
         _check(isinstance(self.robust, bool), "tsg.robust", self.robust, "must be true or false")

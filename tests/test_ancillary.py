@@ -23,7 +23,7 @@ from cikan_ros.tsg import Predictor
 #: The paper's orbit, realistic truth at half its bounds (where robust Verify accepts the
 #: ancillary tube's shifts; docs/robustness.md, "The ancillary tube").
 CFG = load_config(**{**truth_overrides("realistic"), "truth.scale": 0.5, "tsg.robust": True,
-                     "tsg.tube": "ancillary", "tsg.ancillary_r_diag": [1e10] * 3})
+                     "tsg.tube": "ancillary"})
 PRED = Predictor.from_config(CFG)
 
 
