@@ -100,3 +100,27 @@ def test_the_tube_setting_is_checked():
     two_body = CFG.replace(**{"tsg.prediction_gravity": "two-body"})
     with pytest.raises(ConfigError, match="prediction model"):
         Predictor.from_config(two_body)
+
+
+def test_the_ros_graph_refuses_the_ancillary_tube(tmp_path) -> None:
+    """The ROS controller does not hold a plan: `cikan mission` (the graph) and controller_node
+    started alone refuse tsg.tube ancillary with one line naming it, exit code 2, before any
+    node flies; the offline loop flies it."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    bin_dir = Path(sys.executable).parent
+    args = ["--truth", "realistic", "--robust", "--set", "truth.scale=0.5", "--set", "tsg.tube=ancillary"]
+    out = subprocess.run([sys.executable, "-m", "cikan_ros.cli", "mission", *args, "--bag", str(tmp_path / "bag")],
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 2 and out.stderr.strip().splitlines()[-1].endswith(
+        "tsg.tube: ancillary flies offline only (cikan mission --offline, cikan montecarlo, cikan coverage): "
+        "the ROS controller does not track the accepted prediction yet")
+    assert not (tmp_path / "bag").exists()
+    node = subprocess.run([str(bin_dir / "controller_node"), "--ros-args", "-p", "tsg.robust:=true",
+                           "-p", "tsg.tube:=ancillary"], capture_output=True, text=True, timeout=300)
+    assert node.returncode == 2 and "tsg.tube: ancillary flies offline only" in node.stderr
+    offline = subprocess.run([sys.executable, "-m", "cikan_ros.cli", "mission", "--offline", "--json", "--seed", "1",
+                              *args], capture_output=True, text=True, timeout=600)
+    assert offline.returncode in (0, 1) and '"guard_saturations": 0' in offline.stdout, offline.stderr
