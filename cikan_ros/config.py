@@ -146,6 +146,13 @@ class TSGConfig:
     robust_zeta_s: float = 0.0
     chief_anchor_tolerance_km: float = 1e-6
     prediction_gravity: str = "auto"
+    #: Robust Verify's tube (docs/robustness.md, "The ancillary tube"): "ball", the FTRE truth
+    #: bounded around the prediction; "ancillary", the truth tracks the accepted prediction
+    #: (flown at ``ancillary_gamma`` u_max) with the linear gain of LQ weight
+    #: ``ancillary_r_diag``, which must never saturate. Read only under ``tsg.robust``.
+    tube: str = "ball"
+    ancillary_gamma: float = 0.7
+    ancillary_r_diag: tuple[float, ...] = (1e10, 1e10, 1e10)
 
     def __post_init__(self) -> None:
         _check(isinstance(self.robust, bool), "tsg.robust", self.robust, "must be true or false")
@@ -155,6 +162,12 @@ class TSGConfig:
                "tsg.chief_anchor_tolerance_km", self.chief_anchor_tolerance_km, "must be finite and >= 0")
         _check(self.prediction_gravity in ("auto",) + GRAVITY_MODELS, "tsg.prediction_gravity",
                self.prediction_gravity, f"must be one of {('auto',) + GRAVITY_MODELS}")
+        _check(self.tube in ("ball", "ancillary"), "tsg.tube", self.tube, "must be 'ball' or 'ancillary'")
+        _check(math.isfinite(self.ancillary_gamma) and 0.0 < self.ancillary_gamma <= 1.0,
+               "tsg.ancillary_gamma", self.ancillary_gamma, "must lie in (0, 1]")
+        object.__setattr__(self, "ancillary_r_diag", tuple(float(r) for r in self.ancillary_r_diag))
+        _check(len(self.ancillary_r_diag) == 3 and all(math.isfinite(r) and r > 0 for r in self.ancillary_r_diag),
+               "tsg.ancillary_r_diag", self.ancillary_r_diag, "must be 3 finite weights > 0")
         for name in ("sample_period_s", "terminal_pos_km", "terminal_vel_kmps", "tolerance_s",
                      "initial_window_s", "initial_grid_s", "update_period_s"):
             _positive(f"tsg.{name}", getattr(self, name))
@@ -409,6 +422,13 @@ def control_config(cfg: "Config") -> ControlConfig:
     if not cfg.tsg.robust or cfg.control.robust_r_diag == cfg.control.r_diag:
         return cfg.control
     return dataclasses.replace(cfg.control, r_diag=cfg.control.robust_r_diag)
+
+
+def ancillary_control_config(cfg: "Config") -> ControlConfig:
+    """The controller of the ancillary tube's tracking gain K_a (``tsg.tube`` ancillary): the
+    FTRE DARE with the LQ weight ``tsg.ancillary_r_diag`` (docs/robustness.md, "The ancillary
+    tube")."""
+    return dataclasses.replace(cfg.control, r_diag=cfg.tsg.ancillary_r_diag)
 
 
 #: Update rules of learned governors: the default ("keep", SPEC §8 beyond the paper) and the

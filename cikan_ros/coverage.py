@@ -113,16 +113,17 @@ def held_shift_coverage(cfg: Config, seed: int, governor: str = "conventional") 
         return Coverage(seed, corner, tau, math.nan, math.nan, -1, -1, -1, math.nan, math.nan, -1,
                         violations)
     term = int(np.flatnonzero(trace[:, 8] == 1.0)[0])
-    err_p = np.linalg.norm(result.x_d[:term, :3] - trace[:term, :3], axis=1)
-    err_v = np.linalg.norm(result.x_d[:term, 3:] - trace[:term, 3:6], axis=1)
+    flown = min(term, len(result.x_d))  # a prediction may reach its terminal set after the mission
+    err_p = np.linalg.norm(result.x_d[:flown, :3] - trace[:flown, :3], axis=1)
+    err_v = np.linalg.norm(result.x_d[:flown, 3:] - trace[:flown, 3:6], axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
-        pos, pos_at = _max_at(err_p / trace[:term, 6])
-        vel, vel_at = _max_at(err_v / trace[:term, 7])
+        pos, pos_at = _max_at(err_p / trace[:flown, 6])
+        vel, vel_at = _max_at(err_v / trace[:flown, 7])
     # After it: the virtual target the controller tracks (its own anchor on the measured chief).
     loop = ClosedLoop(pred)
     seen_c = result.x_c if result.x_c_seen is None else result.x_c_seen
     k_end = len(result.t) - 1
-    ball = np.full((k_end + 1 - term, 2), math.nan)
+    ball = np.full((max(0, k_end + 1 - term), 2), math.nan)
     for i, k in enumerate(range(term, k_end + 1)):
         t = float(result.t[k])
         x_v = loop.anchor(through_si(seen_c[k]), t).orbit.state(t + tau)

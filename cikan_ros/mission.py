@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import brentq
 
+from .ancillary import AncillaryLaw, Plan
 from .config import Config
 from .constraints import Margins, margins
 from .control import ftre_control
@@ -130,6 +131,17 @@ class ClosedLoop(Schedule):
         #: The controller's own chief anchor (the governor holds another): the ROS nodes
         #: anchor alike, whichever process computes the command.
         self.anchor = ChiefAnchor(predictor)
+        #: The ancillary tube's tracking law and the plan it tracks (``tsg.tube`` ancillary under
+        #: robust Verify; offline only): None otherwise.
+        self.ancillary = AncillaryLaw(predictor) if predictor.ancillary else None
+        self.plan: Plan | None = None
+
+    def take_effect(self, k: int, tau: float, x_d: NDArray, predictor: Predictor) -> None:
+        """A new shift tau takes effect at step k, verified by ``predictor`` (the governor's
+        anchored model) from the measured deputy x_d: under the ancillary tube its accepted
+        rollout becomes the plan the command tracks; otherwise nothing to do."""
+        if self.ancillary is not None:
+            self.plan = Plan.accepted(predictor, k, self.time(k), tau, x_d)
 
     def decide(self, governor: Governor, k: int, x_d: NDArray, x_c: NDArray,
                tau_prev: float | None) -> UpdateRecord | None:
@@ -148,6 +160,10 @@ class ClosedLoop(Schedule):
         t = self.time(k)
         pred = self.anchor(x_c, t)
         x_v, nu_v = pred.orbit.state_and_anomaly(t + tau)
+        if self.plan is not None and self.ancillary is not None:
+            j = self.plan.sample(k)
+            if j is not None:
+                return self.ancillary.command(self.plan, j, float(nu_v), x_d)
         return ftre_control(pred.gains, float(nu_v), x_d, x_v, self.config.control.u_max_kmps2)
 
 
@@ -184,6 +200,8 @@ class MissionResult:
     #: (K+1,) truth states violating h1 or h3 strictly between t_k and t_{k+1}, at the plant's
     #: substeps (:func:`between_violations`; last entry 0; NaN where unknown); None: not judged.
     between: NDArray | None = None
+    #: Commands the ancillary tube's last guard saturated (None: not the ancillary tube).
+    guard_saturations: int | None = None
 
     @property
     def thrust_limit_factor(self) -> float:
@@ -255,6 +273,7 @@ class MissionResult:
             "truth_scale": cfg.truth.scale,
             "robust": cfg.tsg.robust,
             **({"corner": cfg.truth.corner} if cfg.truth.draw == "corner" else {}),
+            **({"guard_saturations": self.guard_saturations} if self.guard_saturations is not None else {}),
         }
 
     def update_states(self, active_only: bool = True) -> list["UpdateState"]:
@@ -410,6 +429,8 @@ def run_mission(governor: Governor, x_d0: NDArray, seed: int | None = None,
                 else:
                     updates.append(rec)
                     update_t.append(float(t[k]))
+                if rec.tau_s != tau:
+                    loop.take_effect(k, rec.tau_s, x_seen, governor.anchor.current)
                 tau = rec.tau_s
             x_d[k] = x
             taus[k] = tau
@@ -429,4 +450,4 @@ def run_mission(governor: Governor, x_d0: NDArray, seed: int | None = None,
     # judged in the truth's configuration: the governor's, and how the truth drew its errors
     return MissionResult(truth.config, governor.name, t, x_d, x_c, u, taus, m, first, np.array(update_t),
                          updates, None if nominal else seen_d, None if nominal else seen_c, limit,
-                         between)
+                         between, None if loop.ancillary is None else loop.ancillary.guard_saturations)

@@ -38,7 +38,8 @@ import numba as nb
 import numpy as np
 from numpy.typing import NDArray
 
-from .config import Config, ControlConfig, TruthConfig, control_config, prediction_gravity
+from .config import (Config, ControlConfig, TruthConfig, ancillary_control_config, control_config,
+                     prediction_gravity)
 from .constraints import (C_APEX, C_COS_ALPHA, C_GAMMA1, C_GAMMA2, C_GAMMA3, C_PORT, C_UMAX, los_terms_kernel,
                           rel_norms_kernel)
 from .control import B_INPUT, gain_table, zoh_discretise
@@ -51,7 +52,16 @@ from .orbit import KeplerOrbit, elements_to_state
  R_NPF, R_NPG, R_NVF, R_NVG, R_EPSU, R_DMAX, R_KG, R_SINA, R_ZETA, R_GRAD, R_GPP, R_GPV, R_GVP,
  R_GVV, R_NRATE, R_HPP, R_HPV, R_HVP, R_HVV, R_EPP, R_EPV, R_EVP, R_EVV, R_NJUMP, R_CNPP, R_CNPV,
  R_CNVP, R_CNVV) = range(42)
-N_RPARAMS = 42
+# The ancillary tube (``tsg.tube`` ancillary, :func:`ancillary_step`): its flag, the prediction's
+# thrust fraction gamma, and the constants of the tracking loop A_d - B_d M K_a (RA_ + the
+# name of the constant in :func:`tube_constants`, in capitals).
+R_TUBE, R_GAMMA = 42, 43
+ANCILLARY_KEYS = ("lam", "kp", "kv", "cpe", "cve") + tuple(
+    f"{c}{row}{col}" for c in ("c0", "d", "g", "h", "cn") for row in "pv" for col in "pv")
+(RA_LAM, RA_KP, RA_KV, RA_CPE, RA_CVE, RA_C0PP, RA_C0PV, RA_C0VP, RA_C0VV, RA_DPP, RA_DPV, RA_DVP,
+ RA_DVV, RA_GPP, RA_GPV, RA_GVP, RA_GVV, RA_HPP, RA_HPV, RA_HVP, RA_HVV, RA_CNPP, RA_CNPV, RA_CNVP,
+ RA_CNVV) = range(44, 44 + len(ANCILLARY_KEYS))
+N_RPARAMS = 44 + len(ANCILLARY_KEYS)
 
 #: Powers of the closed-loop matrix scanned for the constants C (lam^200 < 1e-11 here).
 N_POWERS = 200
@@ -204,6 +214,15 @@ def robust_params(cfg: Config, orbit: KeplerOrbit) -> NDArray:
         # stay above the chief's perigee less the start's spread).
         r_min = orbit.a * (1.0 - orbit.e) - 200.0
         rp[R_KG] = j2_gradient_bound(r_min, orbit.mu)
+    if cfg.tsg.tube == "ancillary":
+        if rp[R_KG] != 0.0:
+            raise ConfigError("tsg.tube ancillary tracks the prediction in inertial space: the prediction "
+                              "model must fly the truth's gravity (tsg.prediction_gravity auto or j2)")
+        ta = tube_constants(orbit, ancillary_control_config(cfg), bias, point)
+        rp[R_TUBE] = 1.0
+        rp[R_GAMMA] = cfg.tsg.ancillary_gamma
+        for i, name in enumerate(ANCILLARY_KEYS):
+            rp[RA_LAM + i] = ta[name]
     rp.setflags(write=False)
     return rp
 
@@ -446,3 +465,89 @@ def gain_margin(orbit: KeplerOrbit, cfg: ControlConfig, tol: float = 1e-4) -> fl
         except UnstableLoopError:
             hi = mid
     return lo
+
+
+# -- the ancillary tube (``tsg.tube`` ancillary; docs/robustness.md, "The ancillary tube") --------
+#
+# The truth does not fly its own saturated FTRE loop: it tracks the accepted prediction (x_p,j,
+# u_p,j, flown at gamma u_max) with u = u_p,j - K_a (x_hat - x_p,j), K_a the FTRE gain of the
+# LQ weight ``tsg.ancillary_r_diag``. While that command stays within u_max the error
+# e = x_truth - x_p obeys exactly e' = Phi_M e - B M K_a delta + B [(M - I) u_p + d], with
+# Phi_M = A - B M K_a: the linear error system the recursions bound. Two recursions bound it,
+# each sound alone, and the smaller is used: the transient z = e + G delta_(j-1) driven by the
+# navigation error's changes (R1, S1: the D constants, as :func:`tube_step`), and the whole error
+# driven by the navigation error itself (R2, S2: the C_n constants, as :func:`tube_step_jump`).
+# The R are C-weighted (R_j >= |z_j| and R_(j+1) = lam R_j + forcing), so they start from C0
+# times the error at sample 0.
+
+
+@nb.njit(cache=True)
+def ancillary_start(rp: NDArray, rng: float) -> tuple[float, float, float, float, float, float]:
+    """The ancillary tube at sample 0, the measured state at range rng (km): e_0 = -delta_0, so
+    (rho, sigma) = (b_p, b_v) and the two recursions' C-weighted states (R1, S1, R2, S2) are C0
+    times the transient -(I - G) delta_0 and C0 times delta_0. The bounds are taken at the
+    largest true range the measured one allows, r <= (rng + floor) / (1 - fraction)."""
+    true_rng = (rng + rp[R_NPF]) / max(1.0 - rp[R_NPG], 1e-9)
+    bp = rp[R_NPF] + rp[R_NPG] * true_rng
+    bv = rp[R_NVF] + rp[R_NVG] * true_rng
+    zp = rp[RA_HPP] * bp + rp[RA_HPV] * bv
+    zv = rp[RA_HVP] * bp + rp[RA_HVV] * bv
+    r1 = rp[RA_C0PP] * zp + rp[RA_C0PV] * zv
+    s1 = rp[RA_C0VP] * zp + rp[RA_C0VV] * zv
+    r2 = rp[RA_C0PP] * bp + rp[RA_C0PV] * bv
+    s2 = rp[RA_C0VP] * bp + rp[RA_C0VV] * bv
+    return bp, bv, r1, s1, r2, s2
+
+
+@nb.njit(cache=True)
+def ancillary_step(rp: NDArray, u_max: float, ts: float, x: NDArray, xc: NDArray, u: NDArray,
+                   rng: float, rho: float, sig: float, r1: float, s1: float, r2: float, s2: float
+                   ) -> tuple[float, float, float, float, float, float, bool]:
+    """The ancillary tube from sample j to j + 1 around the prediction x (range rng, km; chief
+    xc) with the prediction's command u (km/s^2): (rho, sigma, R1, S1, R2, S2, headroom).
+
+    Headroom: the truth's command u_p - K_a (e + delta) stays within u_max when |u_p| +
+    |K_a,p| Dp + |K_a,v| Dv <= u_max, Dp and Dv the bounds of e + delta's position and velocity:
+    min(R1 + H b + G Delta, rho + b) (e + delta = z + (I - G) delta_j + G (delta_j - delta_(j-1))).
+    Without headroom the linear error system does not hold and the shift is refused (False)."""
+    vrel = math.sqrt((x[3] - xc[3]) ** 2 + (x[4] - xc[4]) ** 2 + (x[5] - xc[5]) ** 2)
+    rr = rng + rho
+    bp, bv, dp, dv = nav_terms(rp, rr, vrel + sig, ts)
+    un = math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
+    dev_p = min(r1 + rp[RA_HPP] * bp + rp[RA_HPV] * bv + rp[RA_GPP] * dp + rp[RA_GPV] * dv,
+                rho + bp)
+    dev_v = min(s1 + rp[RA_HVP] * bp + rp[RA_HVV] * bv + rp[RA_GVP] * dp + rp[RA_GVV] * dv,
+                sig + bv)
+    if un + rp[RA_KP] * dev_p + rp[RA_KV] * dev_v > u_max:
+        return rho, sig, r1, s1, r2, s2, False
+    eta = rp[R_EPSU] * un + rp[R_DMAX] + rp[R_KG] * rr
+    lam = rp[RA_LAM]
+    r1 = lam * r1 + rp[RA_DPP] * dp + rp[RA_DPV] * dv + rp[RA_CPE] * eta
+    s1 = lam * s1 + rp[RA_DVP] * dp + rp[RA_DVV] * dv + rp[RA_CVE] * eta
+    r2 = lam * r2 + rp[RA_CNPP] * bp + rp[RA_CNPV] * bv + rp[RA_CPE] * eta
+    s2 = lam * s2 + rp[RA_CNVP] * bp + rp[RA_CNVV] * bv + rp[RA_CVE] * eta
+    rho = min(r1 + rp[RA_GPP] * bp + rp[RA_GPV] * bv, r2)
+    sig = min(s1 + rp[RA_GVP] * bp + rp[RA_GVV] * bv, s2)
+    return rho, sig, r1, s1, r2, s2, True
+
+
+@nb.njit(cache=True)
+def ancillary_terminal_ok(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, dp: float, dv: float,
+                          rho: float, sig: float, ts: float) -> tuple[bool, float, float]:
+    """The robust terminal test of the ancillary tube: from the terminal sample on, the controller
+    flies the FTRE law of the prediction toward x_v (no tracking), so the truth's error from the
+    prediction, within (rho, sigma) there, is handed to the FTRE loop as a transient
+    z = e + G_K delta (:func:`robust_terminal_ok`, not linear: C0 takes it over); the truth's
+    command, at most |K_p| (ball_p + b_p) + |K_v| (ball_v + b_v), must stay below u_max."""
+    rng = math.sqrt((xv[0] - xc[0]) ** 2 + (xv[1] - xc[1]) ** 2 + (xv[2] - xc[2]) ** 2)
+    vel = math.sqrt((xv[3] - xc[3]) ** 2 + (xv[4] - xc[4]) ** 2 + (xv[5] - xc[5]) ** 2)
+    bp, bv, _, _ = nav_terms(rp, rng + rho, vel + sig, ts)
+    big_r = rho + rp[R_GPP] * bp + rp[R_GPV] * bv
+    big_s = sig + rp[R_GVP] * bp + rp[R_GVV] * bv
+    ok, ball_p, ball_v = robust_terminal_ok(xv, xc, cp, rp, dp, dv, big_r, big_s, False, ts)
+    if not ok:
+        return False, 0.0, 0.0
+    bp, bv, _, _ = nav_terms(rp, rng + ball_p, vel + ball_v, ts)
+    if rp[R_KP] * (ball_p + bp) + rp[R_KV] * (ball_v + bv) >= cp[C_UMAX]:
+        return False, 0.0, 0.0
+    return True, ball_p, ball_v

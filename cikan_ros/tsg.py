@@ -47,7 +47,8 @@ from .errors import NoFeasibleShiftError, StateError
 from .orbit import (N_PARAMS, P_E, P_M0, P_MU, P_N, KeplerOrbit, check_states,
                     eccentric_anomaly_kernel, osculating_params_kernel, state_from_anomaly_kernel,
                     state_kernel, state_warm_kernel)
-from .robust import R_ON, R_ZETA, robust_params, robust_terminal_ok, tube_next, tube_ok, tube_start
+from .robust import (R_GAMMA, R_ON, R_TUBE, R_ZETA, ancillary_start, ancillary_step, ancillary_terminal_ok,
+                     robust_params, robust_terminal_ok, tube_next, tube_ok, tube_start)
 from .units import ns_to_seconds
 from .units import seconds_to_ns as to_ns
 
@@ -115,9 +116,14 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
     a row whose anomaly is NaN is computed on first use and reused by every later Verify.
     With ``rp[R_ON]`` the constraints and the terminal set are checked on the tube around the
     prediction (module docstring; the tube's kernels are in :mod:`cikan_ros.robust`).
-    ``trace`` (N_p, 9), or an empty array for none, receives under robust Verify each checked
-    sample's predicted deputy, rho, sigma and 0, and at the accepting sample the virtual target,
-    the terminal ball's radii and 1 (what ``cikan coverage`` compares the truth with).
+    ``trace`` (N_p, 18), or an empty array for none, receives under robust Verify each checked
+    sample's predicted deputy, rho, sigma, 0, the command applied from it (km/s^2) and the
+    predicted chief, and at the
+    accepting sample the virtual target, the terminal ball's radii and 1 (what ``cikan coverage``
+    compares the truth with, and what the ancillary tube's controller tracks).
+    Under the ancillary tube (``rp[R_TUBE]``) the prediction flies at gamma u_max and the tube is
+    :func:`~cikan_ros.robust.ancillary_step`'s, which refuses a shift whose tracking law could
+    saturate.
     """
     ts = tp[T_SAMPLE]
     n = int(tp[T_NSAMPLES])
@@ -130,6 +136,9 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
     dm = orb[P_N] * ts  # mean-anomaly advance per sample
     u_max = cp[C_UMAX]
     robust = rp[R_ON] != 0.0
+    ancillary = rp[R_TUBE] != 0.0
+    u_pred = rp[R_GAMMA] * u_max if ancillary else u_max  # the prediction's thrust limit
+    r2 = s2 = 0.0  # the ancillary tube's second recursion
     x = x0.copy()
     xv = np.empty(6)
     u = np.empty(3)
@@ -147,13 +156,16 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
                 chief_row_kernel(orb, chief_t0 + j * ts, xc)
         if robust:
             rng = math.sqrt((x[0] - xc[0]) ** 2 + (x[1] - xc[1]) ** 2 + (x[2] - xc[2]) ** 2)
-            if j == 0:  # the measured state
+            if j == 0 and ancillary:
+                rho, sig, big_r, big_s, r2, s2 = ancillary_start(rp, rng)
+            elif j == 0:  # the measured state
                 rho, sig, big_r, big_s = tube_start(rp, rng)
             if trace.shape[0] > 0:
                 trace[j, :6] = x
                 trace[j, 6] = rho
                 trace[j, 7] = sig
                 trace[j, 8] = 0.0
+                trace[j, 12:18] = xc[:6]
             if not tube_ok(x, xc, cp, rp, rho, sig):
                 return False
         else:
@@ -182,8 +194,12 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
         if dp2 <= tpos2 and dv2 <= tvel2:
             if not robust:
                 return True
-            ok, ball_p, ball_v = robust_terminal_ok(xv, xc, cp, rp, math.sqrt(dp2), math.sqrt(dv2),
-                                                    big_r, big_s, linear, ts)
+            if ancillary:
+                ok, ball_p, ball_v = ancillary_terminal_ok(xv, xc, cp, rp, math.sqrt(dp2), math.sqrt(dv2),
+                                                           rho, sig, ts)
+            else:
+                ok, ball_p, ball_v = robust_terminal_ok(xv, xc, cp, rp, math.sqrt(dp2), math.sqrt(dv2),
+                                                        big_r, big_s, linear, ts)
             if ok:
                 if trace.shape[0] > 0:
                     trace[j, :6] = xv
@@ -191,11 +207,18 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
                     trace[j, 7] = ball_v
                     trace[j, 8] = 1.0
                 return True
-        a_n = ftre_control_kernel(table, nu_v, x, xv, u_max, kb, u)  # |u| before saturation
+        a_n = ftre_control_kernel(table, nu_v, x, xv, u_pred, kb, u)  # |u| before saturation
         # h2 holds by saturation up to rounding; checked so a changed control law cannot skip it.
         if h2_thrust_kernel(u, cp) > 1e-12 * u_max:
             return False
-        if robust:  # the tube at sample j + 1 (cikan_ros.robust, docs/robustness.md)
+        if robust and trace.shape[0] > 0:
+            trace[j, 9:12] = u
+        if ancillary:
+            rho, sig, big_r, big_s, r2, s2, ok = ancillary_step(rp, u_max, ts, x, xc, u, rng, rho, sig,
+                                                                big_r, big_s, r2, s2)
+            if not ok:
+                return False
+        elif robust:  # the tube at sample j + 1 (cikan_ros.robust, docs/robustness.md)
             rho, sig, big_r, big_s, linear = tube_next(rp, u_max, ts, x, xc, u, a_n, rng, rho, sig,
                                                        big_r, big_s, linear)
         rk4_kernel(x, u, ts, sub, mu, x, j2r2)
@@ -433,6 +456,12 @@ class Predictor:
         return self.config.tsg.robust
 
     @property
+    def ancillary(self) -> bool:
+        """Does the truth track Verify's accepted prediction (``tsg.tube`` ancillary under robust
+        Verify; :mod:`cikan_ros.ancillary`)?"""
+        return self.robust and self.config.tsg.tube == "ancillary"
+
+    @property
     def tol_ns(self) -> int:
         """Bisection tolerance in integer nanoseconds."""
         return to_ns(self.config.tsg.tolerance_s)
@@ -504,13 +533,13 @@ class Predictor:
                                   self._shift(tau, "tau"), c.rows, c.t0))
 
     def rollout_trace(self, x_d: ArrayLike, t: float, tau: float) -> tuple[bool, NDArray]:
-        """One rollout of Verify(x_d, t, tau) (without the zeta interval) and its trace (N_p, 9)
+        """One rollout of Verify(x_d, t, tau) (without the zeta interval) and its trace (N_p, 18)
         under robust Verify: per checked sample the predicted deputy (km, km/s, ECI), rho (km),
-        sigma (km/s) and 0; at the accepting sample the virtual target, the terminal ball's
+        sigma (km/s), 0, the command (km/s^2) and the predicted chief; at the accepting sample the virtual target, the terminal ball's
         radii and 1; rows not reached stay NaN (:func:`rollout_kernel`)."""
         x, t = self._state(x_d, t)
         c = self.cache(t)
-        trace = np.full((self.n_samples, 9), math.nan)
+        trace = np.full((self.n_samples, 18), math.nan)
         ok = rollout_kernel(self.orbit.params, self.gains, self.cparams, self.tparams, self.rparams, x, t,
                             self._shift(tau, "tau"), c.rows, c.t0, trace)
         return bool(ok), trace

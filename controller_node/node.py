@@ -25,6 +25,8 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from sensor_msgs.msg import TimeReference
 
+from cikan_ros.ancillary import OFFLINE_ONLY as ANCILLARY_OFFLINE_ONLY
+from cikan_ros.errors import ConfigError
 from cikan_ros.mission import ClosedLoop
 from cikan_ros.ros import convert as cv
 from cikan_ros.ros.graph import QOS_STREAM, Readiness, qos_for, run_node
@@ -50,6 +52,8 @@ class ControllerNode(Node):
         lost = float(p["controller.lost_deadline_s"])
         peers, timeout = [str(n) for n in p["graph.peers"]], float(p["graph.startup_timeout_s"])
         pred = Predictor.from_config(cfg)
+        if pred.ancillary:
+            raise ConfigError(ANCILLARY_OFFLINE_ONLY)
         self.loop = ClosedLoop(pred)
         x0 = pred.orbit.state(0.0)
         self.loop.command(0, 0.0, x0, x0)  # load the compiled kernels now (the anchor stays put)

@@ -25,7 +25,7 @@ LAYERS: list[dict[str, list[str]]] = [
               "cikan_ros.strict_json"]},
     {"physics": ["cikan_ros.orbit", "cikan_ros.dynamics", "cikan_ros.control", "cikan_ros.constraints",
                  "cikan_ros.truth"]},
-    {"verify": ["cikan_ros.tsg", "cikan_ros.robust"]},
+    {"verify": ["cikan_ros.tsg", "cikan_ros.robust", "cikan_ros.ancillary"]},
     {"governor": ["cikan_ros.governor"]},
     {"mission": ["cikan_ros.mission", "cikan_ros.timing", "cikan_ros.bench",
                  "cikan_ros.scene"]},

@@ -1,0 +1,76 @@
+"""The ancillary tube's controller (``tsg.tube`` ancillary; docs/robustness.md, "The ancillary
+tube"): the truth tracks the prediction robust Verify accepted instead of flying its own
+saturated FTRE loop.
+
+When a shift takes effect, the accepted rollout (:meth:`Predictor.rollout_trace`, from the
+measured state at that update) becomes the :class:`Plan`: the predicted deputy x_p,j and its
+command u_p,j (flown at gamma u_max) at the samples j before the terminal sample. At control step
+k the command is u_p,j - K_a(nu_v) (x_hat - x_p,j), j = k - k_0, with K_a the FTRE gain of the
+LQ weight ``tsg.ancillary_r_diag`` (saturated at u_max only as a last guard: robust Verify
+refused every shift whose tube could make it saturate). From the terminal sample on the plan
+is done and the FTRE law toward the virtual target flies, as robust Verify's terminal test
+assumed. A held shift keeps its plan: no re-verification.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .config import ancillary_control_config
+from .control import gain_table, interpolate_gain, saturate
+from .errors import StateError
+from .tsg import Predictor
+
+
+#: Why the ROS graph refuses the ancillary tube (its controller node does not hold a plan yet).
+OFFLINE_ONLY = ("tsg.tube: ancillary flies offline only (cikan mission --offline, cikan montecarlo, "
+                "cikan coverage): the ROS controller does not track the accepted prediction yet")
+
+
+@dataclass(frozen=True)
+class Plan:
+    """An accepted prediction to track: from control step ``k0`` on, x_p (J, 6) km, km/s (ECI)
+    and u_p (J, 3) km/s^2 for the samples before the terminal one (J of them), the shift
+    ``tau`` (s) it was verified for."""
+
+    k0: int
+    tau: float
+    x_p: NDArray
+    u_p: NDArray
+
+    @classmethod
+    def accepted(cls, predictor: Predictor, k: int, t: float, tau: float, x_d: NDArray) -> "Plan":
+        """The plan of shift tau accepted at step k (time t, s) from the measured deputy x_d:
+        robust Verify's rollout, which must pass (StateError otherwise)."""
+        ok, trace = predictor.rollout_trace(x_d, t, tau)
+        if not ok:
+            raise StateError(f"the shift {tau} s taking effect at t = {t} s does not pass robust Verify: no plan")
+        term = int(np.flatnonzero(trace[:, 8] == 1.0)[0])
+        return cls(k, float(tau), trace[:term, :6].copy(), trace[:term, 9:12].copy())
+
+    def sample(self, k: int) -> int | None:
+        """The plan's sample j at control step k, or None once the plan is done (terminal)."""
+        j = k - self.k0
+        return j if 0 <= j < len(self.x_p) else None
+
+
+class AncillaryLaw:
+    """u = sat_{u_max}(u_p,j - K_a(nu_v) (x_hat - x_p,j)) along a :class:`Plan`."""
+
+    def __init__(self, predictor: Predictor) -> None:
+        cfg = predictor.config
+        self.gains = gain_table(predictor.orbit, ancillary_control_config(cfg))
+        self.u_max = cfg.control.u_max_kmps2
+        #: Commands the last guard saturated (robust Verify's headroom check says: none).
+        self.guard_saturations = 0
+
+    def command(self, plan: Plan, j: int, nu_v: float, x_d: NDArray) -> NDArray:
+        """The tracking command (km/s^2, ECI) at the plan's sample j from the measured deputy."""
+        k_a = interpolate_gain(self.gains, nu_v)
+        u = plan.u_p[j] - k_a @ (np.asarray(x_d, dtype=float) - plan.x_p[j])
+        self.guard_saturations += bool(math.sqrt(float(u @ u)) > self.u_max)
+        return saturate(u, self.u_max)
