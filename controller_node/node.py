@@ -66,8 +66,9 @@ class ControllerNode(Node):
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.deadline = self.create_timer(deadline, self.on_deadline, clock=steady, autostart=False)
         self.lost_deadline = self.create_timer(lost, self.on_deadline, clock=steady, autostart=False)
-        subs = [self.readiness.subscription(Odometry, DEPUTY_ODOM, self.on_deputy, QOS_STREAM),
-                self.readiness.subscription(Odometry, CHIEF_ODOM, self.on_chief, QOS_STREAM),
+        # Raw: the states are read from their CDR bytes (cv.odom_from_cdr), not deserialised whole.
+        subs = [self.readiness.subscription(Odometry, DEPUTY_ODOM, self.on_deputy, QOS_STREAM, raw=True),
+                self.readiness.subscription(Odometry, CHIEF_ODOM, self.on_chief, QOS_STREAM, raw=True),
                 self.readiness.subscription(TimeReference, TIME_SHIFT, self.on_shift, QOS_STREAM)]
         waits = [(self.pub_accel, required_readers(ACCEL_CMD, peers)),
                  (self.pub_diag, required_readers(DIAGNOSTICS, peers))]
@@ -83,17 +84,22 @@ class ControllerNode(Node):
         self.get_logger().warning(text)
         self.diag("warn", text, stamp, {"event": "rejected"})
 
-    def on_deputy(self, msg: Odometry) -> None:
-        self.on_state(msg, "deputy", "x")
+    def on_deputy(self, data: bytes) -> None:
+        self.on_state(data, "deputy", "x")
 
-    def on_chief(self, msg: Odometry) -> None:
-        self.on_state(msg, "chief", "xc")
+    def on_chief(self, data: bytes) -> None:
+        self.on_state(data, "chief", "xc")
 
-    def on_state(self, msg: Odometry, who: str, key: str) -> None:
-        stamp = cv.time_to_ns(msg.header.stamp)
+    def on_state(self, data: bytes, who: str, key: str) -> None:
+        """A serialised Odometry (raw subscription): the state of a step."""
+        try:
+            stamp, frame, x_si = cv.odom_from_cdr(data)
+        except cv.MessageError as exc:
+            self.reject(f"{who} state rejected: {exc}", max(self.last_stamp, self.timeline.epoch_ns))
+            return
         try:
             k = self.timeline.step(stamp)
-            x = cv.state_from_odom(msg)
+            x = cv.state_from_odom(frame, x_si)
         except cv.MessageError as exc:
             self.reject(f"{who} state rejected: {exc}", stamp)
             return

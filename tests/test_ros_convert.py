@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from nav_msgs.msg import Odometry
 from rclpy.serialization import deserialize_message, serialize_message
 
 from cikan_ros.config import Side, load_config
@@ -44,20 +45,56 @@ def test_stamps_are_exact_and_on_the_control_grid() -> None:
 
 
 def test_odometry_round_trip_is_what_the_offline_loop_sees() -> None:
-    msg = deserialize_message(serialize_message(cv.odom_msg(X, 123, "deputy")), type(cv.odom_msg(X, 1, "d")))
+    data = serialize_message(cv.odom_msg(X, 123, "deputy"))
+    msg = deserialize_message(data, Odometry)
     assert msg.header.frame_id == "eci" and msg.child_frame_id == "deputy"
     assert msg.pose.pose.position.x == X[0] * 1000.0                  # SI on the wire
-    np.testing.assert_array_equal(cv.state_from_odom(msg), through_si(X))
-    msg.twist.twist.linear.y = float("inf")
+    stamp, frame, x_si = cv.odom_from_cdr(data)
+    assert (stamp, frame) == (123, "eci")
+    np.testing.assert_array_equal(cv.state_from_odom(frame, x_si), through_si(X))
     with pytest.raises(cv.MessageError, match="non-finite"):
-        cv.state_from_odom(msg)
-    msg = cv.odom_msg(np.array([0.1, 0, 0, 0, 0, 0]), 0, "deputy")
+        cv.state_from_odom("eci", [X[0], X[1], X[2], 0.0, float("inf"), 0.0])
     with pytest.raises(cv.MessageError, match="Earth's centre"):
-        cv.state_from_odom(msg)
-    msg = cv.odom_msg(X, 0, "deputy")
+        cv.state_from_odom(*cv.odom_from_cdr(serialize_message(cv.odom_msg(np.array([0.1, 0, 0, 0, 0, 0]), 0,
+                                                                           "deputy")))[1:])
     msg.header.frame_id = "map"
     with pytest.raises(cv.MessageError, match="frame"):
-        cv.state_from_odom(msg)
+        cv.state_from_odom(*cv.odom_from_cdr(serialize_message(msg))[1:])
+
+
+def _rclpy_odom_fields(data: bytes) -> tuple[int, str, list[float]]:
+    """The reference: what rclpy's own deserialiser reads from serialised Odometry."""
+    msg = deserialize_message(data, Odometry)
+    p, v = msg.pose.pose.position, msg.twist.twist.linear
+    return cv.time_to_ns(msg.header.stamp), msg.header.frame_id, [p.x, p.y, p.z, v.x, v.y, v.z]
+
+
+def test_odometry_read_in_place_is_what_rclpy_deserialises() -> None:
+    """odom_from_cdr reads stamp, frame and state from the CDR bytes as rclpy's deserialiser does,
+    bit for bit, whatever the frame names' lengths (they move the doubles' alignment) and the
+    covariance; bytes in another encoding or layout go through rclpy, and bytes nothing can
+    decode are a MessageError."""
+    rng = np.random.default_rng(7)
+    for frame, child in (("eci", "deputy"), ("eci", "chief"), ("map", ""), ("", "c"), ("earth_fixed", "ab")):
+        for stamp in (0, 5, 1_735_689_600_123_456_789, 2**31 * 10**9 - 1):
+            x = rng.normal(size=6) * [7000, 7000, 7000, 7, 7, 7]
+            msg = cv.odom_msg(x, stamp, child, np.diag(rng.uniform(0, 1e-6, 6)))
+            msg.header.frame_id = frame
+            data = serialize_message(msg)
+            stamp_read, frame_read, x_si = cv.odom_from_cdr(data)
+            ref = _rclpy_odom_fields(data)
+            assert (stamp_read, frame_read) == ref[:2]
+            assert np.array_equal(x_si, ref[2]) and x_si.dtype == np.float64
+            padded = data + b"\x00" * 4   # padding a transport may add at the end: still in place
+            assert cv.odom_from_cdr(padded)[1] == frame
+    data = serialize_message(cv.odom_msg(X, 42, "deputy"))
+    # Another layout than Odometry's (here: longer) is left to rclpy, which reads what it can.
+    stamp, frame, x_si = cv.odom_from_cdr(data + b"\x00" * 16)
+    assert (stamp, frame) == (42, "eci") and np.array_equal(x_si, _rclpy_odom_fields(data)[2])
+    for bad in (b"", b"\x00\x01\x00\x00", data[:60], data[:-8], b"\x00\x01\x00\x00" + b"\xff" * 712,
+                b"\x00\x00\x00\x00" + data[4:]):
+        with pytest.raises(cv.MessageError, match="undecodable odometry"):
+            cv.odom_from_cdr(bad)
 
 
 def test_acceleration_round_trip_and_limits() -> None:
