@@ -2,12 +2,15 @@
 under the configured gravity, thruster errors and disturbance, ZOH), owns the lockstep and the clock
 (as fast as the graph answers, or paced by ``sim.max_rtf``).
 
-Step k: publish /clock = t_k, the MEASURED states on /chief/odom and /deputy/odom stamped t_k (SI,
-ECI, with the navigation covariance) and the true ones on /truth/chief/odom and /truth/deputy/odom;
-wait for the /deputy/accel_cmd stamped t_k; apply it through the thrusters (/truth/deputy/accel:
-the acceleration as applied); integrate to t_{k+1}; log the constraint margins on the truth, the
-applied thrust and the truth states violating h1 or h3 at the plant's substeps strictly between
-t_k and t_{k+1} (``between_violations``: the substeps are not recorded) in /diagnostics. A command that does not come within ``sim.command_deadline_s`` (wall) is
+Step k: publish the MEASURED states on /chief/odom and /deputy/odom stamped t_k (SI, ECI, with the
+navigation covariance), then /clock = t_k and the true ones on /truth/chief/odom and
+/truth/deputy/odom; wait for the /deputy/accel_cmd stamped t_k; apply it through the thrusters;
+integrate to t_{k+1} and publish the states of step k+1; then, while the governor and the
+controller work on those, log step k: the acceleration as applied (/truth/deputy/accel), the
+constraint margins on the truth, the applied thrust and the truth states violating h1 or h3 at
+the plant's substeps strictly between t_k and t_{k+1} (``between_violations``: the substeps are
+not recorded) in /diagnostics. (The bag is a sim-time record: every message of step k is
+stamped t_k, whatever the order it was sent in.) A command that does not come within ``sim.command_deadline_s`` (wall) is
 replaced by zero thrust and reported; after one miss the sim waits only ``sim.lost_deadline_s``
 per step until the controller answers again. Non-finite, out-of-range, off-grid or stale
 commands are rejected with a diagnostic. The process ends after T_sim (or docking, with
@@ -123,31 +126,36 @@ class SimNode(Node):
     def start(self) -> None:
         self.get_logger().info(f"lockstep start: {self.n_steps} steps of {self.cfg.control.period_s:g} s")
         self.wall0 = time.perf_counter()
-        self.publish_state()
+        if self.publish_state():
+            self.finish()
 
     def stamp(self) -> int:
         return self.timeline.stamp_ns(self.k)
 
-    def publish_state(self) -> None:
-        """Publish the states of step k, then wait for its command (or end the mission)."""
+    def publish_state(self) -> bool:
+        """Publish the states of step k, then wait for its command; True when the mission ends at
+        this state instead (the caller then finishes it: :meth:`finish`).
+
+        The measured states go out first: the governor and the controller wait for them; /clock
+        and the truth (for the recorder) follow while they work."""
         stamp = self.stamp()
         truth = self.truth
         self.x_c = truth.chief_state(self.k)
         x_seen, cov = truth.measure_deputy(self.k, self.x)
         out = self.out  # each publisher's own message, filled in place (cv.odom_msg)
-        self.pub_clock.publish(cv.clock_msg(stamp, out["clock"]))
-        self.pub_truth_chief.publish(cv.odom_msg(self.x_c, stamp, "chief", out=out["truth_chief"]))
-        self.pub_truth_deputy.publish(cv.odom_msg(self.x, stamp, "deputy", out=out["truth_deputy"]))
         self.pub_chief.publish(cv.odom_msg(truth.measure_chief(self.k), stamp, "chief", 0.0 * cov,
                                            out=out["chief"]))
         self.pub_deputy.publish(cv.odom_msg(x_seen, stamp, "deputy", cov, out=out["deputy"]))
-        if self.loop.finished(self.k, self.x, self.x_c, self.stop_on_dock):
-            self.finish()
-            return
-        self.waiting = True
         self.t_published = time.perf_counter()
+        self.pub_clock.publish(cv.clock_msg(stamp, out["clock"]))
+        self.pub_truth_chief.publish(cv.odom_msg(self.x_c, stamp, "chief", out=out["truth_chief"]))
+        self.pub_truth_deputy.publish(cv.odom_msg(self.x, stamp, "deputy", out=out["truth_deputy"]))
+        if self.loop.finished(self.k, self.x, self.x_c, self.stop_on_dock):
+            return True
+        self.waiting = True
         self.wait_timer = self.lost_deadline if self.lost else self.deadline
         self.wait_timer.reset()
+        return False
 
     def on_accel(self, msg: AccelStamped) -> None:
         stamp = cv.time_to_ns(msg.header.stamp)
@@ -181,35 +189,43 @@ class SimNode(Node):
                                             {"k": self.k, "event": "rejected", "stamp_ns": stamp}))
 
     def apply(self, u: np.ndarray, source: str) -> None:
-        """Log the margins of step k with the applied thrust u (km/s^2), then integrate to k+1."""
+        """Integrate step k with the applied thrust u (km/s^2) to k+1 and publish the states of
+        k+1; then, while the governor and the controller work on them, log step k: the thrust as
+        applied, its margins and the violations between the samples, its telemetry and scene."""
         self.deadline.cancel()
         self.lost_deadline.cancel()
         self.waiting = False
         ms = (time.perf_counter() - self.t_published) * 1e3
+        k, x_c, x = self.k, self.x_c, self.x
         if source == "command":
-            decision = self.k == 0 or self.loop.update_due(self.k)
+            decision = k == 0 or self.loop.update_due(k)
             (self.latency_update_ms if decision else self.latency_ms).append(ms)
         u = self.truth.applied_thrust(u)  # through the thrusters: the acceleration as applied
-        self.pub_truth_accel.publish(cv.accel_msg(u, self.stamp(), self.out["truth_accel"]))
-        m = margins(self.x, self.x_c, u, self.cfg.constraints, self.u_limit, self.cfg.side)
-        path = self.truth.deputy_path(self.k, self.x, u)
-        between = between_violations(self.cfg, path, self.truth.chief_path(self.k))
-        level = "ok" if source == "command" else "warn"
-        text = "step" if source == "command" else "controller missed its deadline: zero thrust"
-        self.pub_diag.publish(cv.diagnostic(NAME, level, text, self.stamp(), {
-            "k": self.k, "event": "step", "thrust": source, "u_kmps2": u,
-            "h1_normalised": m.h1_normalised[0], "h2_kmps2": m.h2[0], "h3_kmps": m.h3[0],
-            "between_violations": between, "latency_ms": ms}))
-        self.steps.append((self.k, self.x_c, self.x, u))
+        path = self.truth.deputy_path(k, x, u)
+        self.steps.append((k, x_c, x, u))
         self.x = path[-1]
         self.k += 1
         pause = self.wall0 + self.k * self.cfg.control.period_s / self.max_rtf - time.perf_counter() \
             if self.max_rtf > 0 else 0.0
         if pause > 0:
             self.pace = self.create_timer(pause, lambda k=self.k: self.paced(k), clock=self.steady)
+            ended = False
         else:
-            self.publish_state()
-        self.publish_scene()
+            ended = self.publish_state()
+        stamp = self.timeline.stamp_ns(k)
+        self.pub_truth_accel.publish(cv.accel_msg(u, stamp, self.out["truth_accel"]))
+        m = margins(x, x_c, u, self.cfg.constraints, self.u_limit, self.cfg.side)
+        between = between_violations(self.cfg, path, self.truth.chief_path(k))
+        level = "ok" if source == "command" else "warn"
+        text = "step" if source == "command" else "controller missed its deadline: zero thrust"
+        self.pub_diag.publish(cv.diagnostic(NAME, level, text, stamp, {
+            "k": k, "event": "step", "thrust": source, "u_kmps2": u,
+            "h1_normalised": m.h1_normalised[0], "h2_kmps2": m.h2[0], "h3_kmps": m.h3[0],
+            "between_violations": between, "latency_ms": ms}))
+        if ended:
+            self.finish()
+        else:
+            self.publish_scene()
 
     # -- telemetry and scene --------------------------------------------------------------------
     def on_shift(self, msg: TimeReference) -> None:
@@ -252,7 +268,8 @@ class SimNode(Node):
             return
         self.destroy_timer(self.pace)
         self.pace = None
-        self.publish_state()
+        if self.publish_state():
+            self.finish()
 
     def finish(self) -> None:
         wall = time.perf_counter() - self.wall0
