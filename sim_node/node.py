@@ -94,11 +94,11 @@ class SimNode(Node):
         self.pub_truth_chief = self.readiness.publisher(Odometry, TRUTH_CHIEF, QOS_STREAM)
         self.pub_truth_deputy = self.readiness.publisher(Odometry, TRUTH_DEPUTY, QOS_STREAM)
         self.pub_truth_accel = self.readiness.publisher(AccelStamped, TRUTH_ACCEL, QOS_STREAM)
-        # Each publisher's own message, filled in place every step (cv.odom_msg's ``out``).
-        zero = np.zeros(6)
-        self.out = {"clock": cv.clock_msg(0), "truth_chief": cv.odom_msg(zero, 0, "chief"),
-                    "truth_deputy": cv.odom_msg(zero, 0, "deputy"), "chief": cv.odom_msg(zero, 0, "chief"),
-                    "deputy": cv.odom_msg(zero, 0, "deputy"), "truth_accel": cv.accel_msg(zero[:3], 0)}
+        # Each publisher's own message, filled in place every step: the states serialised
+        # (cv.OdometryCdr, published raw), the others as messages (cv.clock_msg's, cv.accel_msg's ``out``).
+        self.out = {"clock": cv.clock_msg(0), "truth_accel": cv.accel_msg(np.zeros(3), 0)}
+        self.cdr = {"truth_chief": cv.OdometryCdr("chief", False), "truth_deputy": cv.OdometryCdr("deputy", False),
+                    "chief": cv.OdometryCdr("chief", True), "deputy": cv.OdometryCdr("deputy", True)}
         self.sub_accel = self.readiness.subscription(AccelStamped, ACCEL_CMD, self.on_accel, QOS_STREAM)
         self.sub_shift = self.readiness.subscription(TimeReference, TIME_SHIFT, self.on_shift, QOS_STREAM)
         self.pub_scene = {TELEMETRY: self.readiness.publisher(JointState, TELEMETRY, QOS_STREAM)}
@@ -142,14 +142,13 @@ class SimNode(Node):
         truth = self.truth
         self.x_c = truth.chief_state(self.k)
         x_seen, cov = truth.measure_deputy(self.k, self.x)
-        out = self.out  # each publisher's own message, filled in place (cv.odom_msg)
-        self.pub_chief.publish(cv.odom_msg(truth.measure_chief(self.k), stamp, "chief", 0.0 * cov,
-                                           out=out["chief"]))
-        self.pub_deputy.publish(cv.odom_msg(x_seen, stamp, "deputy", cov, out=out["deputy"]))
+        cdr = self.cdr
+        self.pub_chief.publish(cdr["chief"](truth.measure_chief(self.k), stamp, 0.0 * cov))
+        self.pub_deputy.publish(cdr["deputy"](x_seen, stamp, cov))
         self.t_published = time.perf_counter()
-        self.pub_clock.publish(cv.clock_msg(stamp, out["clock"]))
-        self.pub_truth_chief.publish(cv.odom_msg(self.x_c, stamp, "chief", out=out["truth_chief"]))
-        self.pub_truth_deputy.publish(cv.odom_msg(self.x, stamp, "deputy", out=out["truth_deputy"]))
+        self.pub_clock.publish(cv.clock_msg(stamp, self.out["clock"]))
+        self.pub_truth_chief.publish(cdr["truth_chief"](self.x_c, stamp))
+        self.pub_truth_deputy.publish(cdr["truth_deputy"](self.x, stamp))
         if self.loop.finished(self.k, self.x, self.x_c, self.stop_on_dock):
             return True
         self.waiting = True

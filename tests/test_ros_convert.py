@@ -323,20 +323,29 @@ def test_odometry_carries_the_state_covariance_in_si() -> None:
 
 
 def test_a_reused_message_serialises_as_a_fresh_one():
-    """odom_msg, accel_msg and clock_msg with ``out`` fill a publisher's own message in place: after
-    any earlier use it serialises to the same CDR bytes as a message built afresh."""
+    """OdometryCdr refills a publisher's serialised Odometry in place, and accel_msg and clock_msg
+    with ``out`` a publisher's own message: after any earlier use each gives the same CDR bytes as
+    rclpy's serialize_message of a message built afresh."""
     rng = np.random.default_rng(3)
-    odom = cv.odom_msg(np.zeros(6), 0, "deputy")
-    odom_cov = cv.odom_msg(np.zeros(6), 0, "deputy")
+    odom = {"chief": cv.OdometryCdr("chief", False), "deputy": cv.OdometryCdr("deputy", False)}
+    odom_cov = {"chief": cv.OdometryCdr("chief", True), "deputy": cv.OdometryCdr("deputy", True)}
     accel = cv.accel_msg(np.zeros(3), 0)
     clock = cv.clock_msg(0)
     for stamp in (1_700_000_000_123_456_789, 1_700_000_010_000_000_000, 5):
         x = rng.normal(size=6) * [7000, 7000, 7000, 7, 7, 7]
-        cov = np.diag(rng.uniform(0, 1e-6, 6))
+        cov = rng.normal(size=(6, 6)) * 1e-7    # any sign: -0.0 of a zeroed covariance too
         u = rng.normal(size=3) * 1e-4
-        assert serialize_message(cv.odom_msg(x, stamp, "deputy", out=odom)) == \
-            serialize_message(cv.odom_msg(x, stamp, "deputy"))
-        assert serialize_message(cv.odom_msg(x, stamp, "deputy", cov, out=odom_cov)) == \
-            serialize_message(cv.odom_msg(x, stamp, "deputy", cov))
+        for child, pad in (("chief", slice(30, 36)), ("deputy", slice(31, 36))):
+            # The same bytes but the alignment padding after child_frame_id, which rclpy leaves
+            # uninitialised (OdometryCdr: zeros).
+            def fresh(*cov_km: np.ndarray) -> bytearray:
+                data = bytearray(serialize_message(cv.odom_msg(x, stamp, child, *cov_km)))
+                data[pad] = bytes(pad.stop - pad.start)
+                return data
+            assert odom[child](x, stamp) == fresh()
+            for c in (cov, 0.0 * cov):
+                assert odom_cov[child](x, stamp, c) == fresh(c)
+        with pytest.raises(ValueError, match="covariance"):
+            odom["chief"](x, stamp, cov)
         assert serialize_message(cv.accel_msg(u, stamp, accel)) == serialize_message(cv.accel_msg(u, stamp))
         assert serialize_message(cv.clock_msg(stamp, clock)) == serialize_message(cv.clock_msg(stamp))

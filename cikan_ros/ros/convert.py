@@ -21,7 +21,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import AccelStamped, Point
 from nav_msgs.msg import Odometry
 from numpy.typing import ArrayLike, NDArray
-from rclpy.serialization import deserialize_message
+from rclpy.serialization import deserialize_message, serialize_message
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState, TimeReference
 from std_msgs.msg import ColorRGBA
@@ -102,29 +102,21 @@ def set_stamp(stamp: Time, ns: int) -> None:
     stamp.sec, stamp.nanosec = divmod(int(ns), NS_PER_S)
 
 
-def odom_msg(x_km: ArrayLike, stamp_ns: int, child_frame: str,
-             cov_km: ArrayLike | None = None, out: Odometry | None = None) -> Odometry:
+def odom_msg(x_km: ArrayLike, stamp_ns: int, child_frame: str, cov_km: ArrayLike | None = None) -> Odometry:
     """nav_msgs/Odometry of an ECI state [r (km); v (km/s)]: position in m, velocity in m/s.
 
     The orientation is the identity, so the child frame's axes are ECI's and the twist (expressed
     in the child frame, as nav_msgs asks) is the ECI velocity. ``cov_km`` (6, 6; km^2, km^2/s^2):
     the state's covariance, written in m^2 and m^2/s^2 into the position block of the pose
     covariance and the linear block of the twist covariance (orientation and angular rate are
-    not estimated: their blocks stay 0).
-
-    ``out``: an Odometry to fill in place and return instead of a new one (a publisher's own,
-    reused step after step: rclpy serialises at publish, and building the nested message takes
-    longer than the rest of this function); used for one topic, so that it is always given a
-    covariance or never.
+    not estimated: their blocks stay 0). A publisher that sends one every step serialises it
+    with :class:`OdometryCdr` instead.
     """
     x_m = km_to_m(x_km)
-    if out is None:
-        msg = Odometry()
-        msg.header.frame_id = FRAME_ECI
-        msg.child_frame_id = child_frame
-        msg.pose.pose.orientation.w = 1.0
-    else:
-        msg = out
+    msg = Odometry()
+    msg.header.frame_id = FRAME_ECI
+    msg.child_frame_id = child_frame
+    msg.pose.pose.orientation.w = 1.0
     set_stamp(msg.header.stamp, stamp_ns)
     p = msg.pose.pose.position
     p.x, p.y, p.z = (float(v) for v in x_m[:3])
@@ -139,6 +131,37 @@ def odom_msg(x_km: ArrayLike, stamp_ns: int, child_frame: str,
         msg.pose.covariance = [float(c) for c in pose.ravel()]
         msg.twist.covariance = [float(c) for c in twist.ravel()]
     return msg
+
+
+class OdometryCdr:
+    """The serialised :func:`odom_msg` of one publisher (little-endian CDR, the bytes rclpy's
+    ``serialize_message`` gives for the message), refilled in place step after step and published
+    raw: converting the nested Python message to C at publish costs rclpy more than the rest of
+    the publish. ``covariance``: whether the topic carries one (always, or never)."""
+
+    def __init__(self, child_frame: str, covariance: bool) -> None:
+        self.buf = bytearray(serialize_message(odom_msg(np.zeros(6), 0, child_frame,
+                                                        np.zeros((6, 6)) if covariance else None)))
+        end, self.pos = _doubles_at(self.buf, 2)
+        # The alignment padding before the doubles: zeros (rclpy leaves whatever was in memory).
+        self.buf[end:self.pos] = bytes(self.pos - end)
+        self.covariance = covariance
+
+    def __call__(self, x_km: ArrayLike, stamp_ns: int, cov_km: ArrayLike | None = None) -> bytes:
+        """The bytes of ``odom_msg(x_km, stamp_ns, child_frame, cov_km)``."""
+        if (cov_km is not None) != self.covariance:
+            raise ValueError(f"this topic's odometry {'carries' if self.covariance else 'has no'} covariance")
+        buf, pos = self.buf, self.pos
+        _TIME.pack_into(buf, 4, *divmod(int(stamp_ns), NS_PER_S))
+        x_m = km_to_m(x_km)
+        _VEC3.pack_into(buf, pos, *x_m[:3])
+        _VEC3.pack_into(buf, pos + 8 * _ODOM_TWIST, *x_m[3:])
+        if cov_km is not None:
+            cov = np.asarray(cov_km, dtype=float) * 1e6  # km^2 -> m^2
+            for i in range(3):   # row i of the position block; of the linear-velocity block
+                _VEC3.pack_into(buf, pos + 8 * (_ODOM_POSE_COV + 6 * i), *cov[i, :3])
+                _VEC3.pack_into(buf, pos + 8 * (_ODOM_TWIST_COV + 6 * i), *cov[3 + i, 3:])
+        return bytes(buf)
 
 
 def covariance_from_odom(msg: Odometry) -> NDArray:
@@ -163,15 +186,16 @@ def state_from_odom(frame_id: str, x_si: ArrayLike) -> NDArray:
 
 #: CDR (XCDR1) little-endian encapsulation: what rmw_fastrtps sends.
 _CDR_LE = b"\x00\x01"
-_STAMP = struct.Struct("<iII")       # header.stamp.sec, .nanosec, frame_id's length
+_TIME = struct.Struct("<iI")         # builtin_interfaces/Time: sec, nanosec
 _LENGTH = struct.Struct("<I")
 _VEC3 = struct.Struct("<3d")
-#: Doubles of an Odometry after its child_frame_id: position 3, orientation 4, covariance 36,
-#: twist linear 3, angular 3, covariance 36.
-_ODOM_DOUBLES = 85
+#: Doubles of an Odometry after its child_frame_id: position 3, orientation 4, covariance 36
+#: (from _ODOM_POSE_COV), twist linear 3 (from _ODOM_TWIST), angular 3, covariance 36 (from
+#: _ODOM_TWIST_COV).
+_ODOM_DOUBLES, _ODOM_POSE_COV, _ODOM_TWIST, _ODOM_TWIST_COV = 85, 7, 43, 49
 
 
-def _cdr_string(data: bytes, pos: int) -> tuple[bytes, int]:
+def _cdr_string(data: bytes | bytearray, pos: int) -> tuple[bytes, int]:
     """A CDR string (uint32 length with the NUL, the bytes, NUL) at ``pos`` (4-aligned):
     (its bytes without the NUL, the position after it); ValueError if it does not fit."""
     (n,) = _LENGTH.unpack_from(data, pos)
@@ -179,6 +203,17 @@ def _cdr_string(data: bytes, pos: int) -> tuple[bytes, int]:
     if n < 1 or end > len(data) or data[end - 1] != 0:
         raise ValueError("malformed string")
     return data[pos + 4:end - 1], end
+
+
+def _doubles_at(data: bytes | bytearray, strings: int) -> tuple[int, int]:
+    """(the end of the strings, where the doubles begin) in little-endian CDR of a message that
+    starts with a Time and ``strings`` strings (a Header's frame_id, an Odometry's
+    child_frame_id), then doubles (8-aligned from the end of the 4-byte encapsulation header);
+    ValueError if a string does not fit."""
+    pos = 12
+    for _ in range(strings):
+        pos = _cdr_string(data, (pos + 3) & ~3)[1]
+    return pos, 4 + ((pos - 4 + 7) & ~7)
 
 
 def odom_from_cdr(data: bytes) -> tuple[int, str, NDArray]:
@@ -192,13 +227,12 @@ def odom_from_cdr(data: bytes) -> tuple[int, str, NDArray]:
     try:
         if data[:2] != _CDR_LE:
             raise ValueError("not little-endian CDR")
-        sec, nsec, _n = _STAMP.unpack_from(data, 4)
-        frame, pos = _cdr_string(data, 12)
-        _child, pos = _cdr_string(data, (pos + 3) & ~3)
-        pos = 4 + ((pos - 4 + 7) & ~7)   # doubles are 8-aligned from the end of the encapsulation
+        sec, nsec = _TIME.unpack_from(data, 4)
+        frame, _end = _cdr_string(data, 12)
+        _end, pos = _doubles_at(data, 2)
         if not 0 <= len(data) - (pos + 8 * _ODOM_DOUBLES) < 8:
             raise ValueError("length does not match the layout")
-        x_si = np.array(_VEC3.unpack_from(data, pos) + _VEC3.unpack_from(data, pos + 8 * 43))
+        x_si = np.array(_VEC3.unpack_from(data, pos) + _VEC3.unpack_from(data, pos + 8 * _ODOM_TWIST))
         return sec * NS_PER_S + nsec, frame.decode(), x_si
     except (ValueError, struct.error, UnicodeDecodeError):
         pass
