@@ -26,7 +26,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import TimeReference
 
 from cikan_ros.mission import ClosedLoop
-from cikan_ros.ros import convert as cv
+from cikan_ros.ros import cdr, convert as cv
 from cikan_ros.ros.graph import QOS_STREAM, Readiness, qos_for, run_node
 from cikan_ros.ros.graph_spec import (PATH_HOLD, ACCEL_CMD, CHIEF_ODOM, DEPUTY_ODOM, DIAGNOSTICS, TIME_SHIFT,
                                       required_publishers, required_readers)
@@ -66,7 +66,7 @@ class ControllerNode(Node):
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.deadline = self.create_timer(deadline, self.on_deadline, clock=steady, autostart=False)
         self.lost_deadline = self.create_timer(lost, self.on_deadline, clock=steady, autostart=False)
-        # Raw: the states are read from their CDR bytes (cv.odom_from_cdr), not deserialised whole.
+        # Raw: the states are read from their CDR bytes (cdr.odom_from_cdr), not deserialised whole.
         subs = [self.readiness.subscription(Odometry, DEPUTY_ODOM, self.on_deputy, QOS_STREAM, raw=True),
                 self.readiness.subscription(Odometry, CHIEF_ODOM, self.on_chief, QOS_STREAM, raw=True),
                 self.readiness.subscription(TimeReference, TIME_SHIFT, self.on_shift, QOS_STREAM)]
@@ -93,7 +93,7 @@ class ControllerNode(Node):
     def on_state(self, data: bytes, who: str, key: str) -> None:
         """A serialised Odometry (raw subscription): the state of a step."""
         try:
-            stamp, frame, x_si = cv.odom_from_cdr(data)
+            stamp, frame, x_si = cdr.odom_from_cdr(data)
         except cv.MessageError as exc:
             self.reject(f"{who} state rejected: {exc}", max(self.last_stamp, self.timeline.epoch_ns))
             return

@@ -41,7 +41,7 @@ from visualization_msgs.msg import MarkerArray
 
 from cikan_ros.constraints import margins
 from cikan_ros.mission import ClosedLoop, between_violations, nominal_start, sample_start
-from cikan_ros.ros import convert as cv
+from cikan_ros.ros import cdr, convert as cv
 from cikan_ros.ros.graph import QOS_STREAM, PeerWatch, Readiness, qos_for, run_node
 from cikan_ros.ros.graph_spec import (ACCEL_CMD, CHIEF_ODOM, CLOCK, DEPUTY_ODOM, DIAGNOSTICS, SCENE_CONSTRAINTS,
                                       SCENE_MARKERS, SCENE_PATH, TELEMETRY, TIME_SHIFT, TRUTH_ACCEL,
@@ -95,11 +95,12 @@ class SimNode(Node):
         self.pub_truth_deputy = self.readiness.publisher(Odometry, TRUTH_DEPUTY, QOS_STREAM)
         self.pub_truth_accel = self.readiness.publisher(AccelStamped, TRUTH_ACCEL, QOS_STREAM)
         # Each publisher's own message, filled in place every step: the states serialised
-        # (cv.OdometryCdr, published raw), the others as messages (cv.clock_msg's, cv.accel_msg's ``out``).
+        # (cdr.OdometryCdr, published raw), the others as messages (cv.clock_msg's, cv.accel_msg's ``out``).
         self.out = {"clock": cv.clock_msg(0), "truth_accel": cv.accel_msg(np.zeros(3), 0)}
         self.step_diag: DiagnosticArray | None = None   # the per-step record, refilled (cv.diagnostic's ``out``)
-        self.cdr = {"truth_chief": cv.OdometryCdr("chief", False), "truth_deputy": cv.OdometryCdr("deputy", False),
-                    "chief": cv.OdometryCdr("chief", True), "deputy": cv.OdometryCdr("deputy", True)}
+        self.serialised = {"truth_chief": cdr.OdometryCdr("chief", False),
+                           "truth_deputy": cdr.OdometryCdr("deputy", False),
+                           "chief": cdr.OdometryCdr("chief", True), "deputy": cdr.OdometryCdr("deputy", True)}
         self.sub_accel = self.readiness.subscription(AccelStamped, ACCEL_CMD, self.on_accel, QOS_STREAM)
         self.sub_shift = self.readiness.subscription(TimeReference, TIME_SHIFT, self.on_shift, QOS_STREAM)
         self.pub_scene = {TELEMETRY: self.readiness.publisher(JointState, TELEMETRY, QOS_STREAM)}
@@ -157,13 +158,13 @@ class SimNode(Node):
         truth = self.truth
         self.x_c = truth.chief_state(self.k)
         x_seen, cov = truth.measure_deputy(self.k, self.x)
-        cdr = self.cdr
-        self.pub_chief.publish(cdr["chief"](truth.measure_chief(self.k), stamp, 0.0 * cov))
-        self.pub_deputy.publish(cdr["deputy"](x_seen, stamp, cov))
+        states = self.serialised
+        self.pub_chief.publish(states["chief"](truth.measure_chief(self.k), stamp, 0.0 * cov))
+        self.pub_deputy.publish(states["deputy"](x_seen, stamp, cov))
         self.t_published = time.perf_counter()
         self.pub_clock.publish(cv.clock_msg(stamp, self.out["clock"]))
-        self.pub_truth_chief.publish(cdr["truth_chief"](self.x_c, stamp))
-        self.pub_truth_deputy.publish(cdr["truth_deputy"](self.x, stamp))
+        self.pub_truth_chief.publish(states["truth_chief"](self.x_c, stamp))
+        self.pub_truth_deputy.publish(states["truth_deputy"](self.x, stamp))
         if self.loop.finished(self.k, self.x, self.x_c, self.stop_on_dock):
             return True
         self.waiting = True

@@ -16,7 +16,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 
 from cikan_ros.config import Side, load_config
 from cikan_ros.errors import ConfigError
-from cikan_ros.ros import convert as cv
+from cikan_ros.ros import cdr, convert as cv
 from cikan_ros.ros.bag_writer import BagWriter, qos_dict, schema_text, type_hash
 from cikan_ros.ros.graph import QOS_PROFILES, QOS_STREAM, qos_for
 from cikan_ros.ros.graph_spec import QOS_KINDS, TOPICS
@@ -50,17 +50,17 @@ def test_odometry_round_trip_is_what_the_offline_loop_sees() -> None:
     msg = deserialize_message(data, Odometry)
     assert msg.header.frame_id == "eci" and msg.child_frame_id == "deputy"
     assert msg.pose.pose.position.x == X[0] * 1000.0                  # SI on the wire
-    stamp, frame, x_si = cv.odom_from_cdr(data)
+    stamp, frame, x_si = cdr.odom_from_cdr(data)
     assert (stamp, frame) == (123, "eci")
     np.testing.assert_array_equal(cv.state_from_odom(frame, x_si), through_si(X))
     with pytest.raises(cv.MessageError, match="non-finite"):
         cv.state_from_odom("eci", [X[0], X[1], X[2], 0.0, float("inf"), 0.0])
     with pytest.raises(cv.MessageError, match="Earth's centre"):
-        cv.state_from_odom(*cv.odom_from_cdr(serialize_message(cv.odom_msg(np.array([0.1, 0, 0, 0, 0, 0]), 0,
+        cv.state_from_odom(*cdr.odom_from_cdr(serialize_message(cv.odom_msg(np.array([0.1, 0, 0, 0, 0, 0]), 0,
                                                                            "deputy")))[1:])
     msg.header.frame_id = "map"
     with pytest.raises(cv.MessageError, match="frame"):
-        cv.state_from_odom(*cv.odom_from_cdr(serialize_message(msg))[1:])
+        cv.state_from_odom(*cdr.odom_from_cdr(serialize_message(msg))[1:])
 
 
 def _rclpy_odom_fields(data: bytes) -> tuple[int, str, list[float]]:
@@ -82,20 +82,20 @@ def test_odometry_read_in_place_is_what_rclpy_deserialises() -> None:
             msg = cv.odom_msg(x, stamp, child, np.diag(rng.uniform(0, 1e-6, 6)))
             msg.header.frame_id = frame
             data = serialize_message(msg)
-            stamp_read, frame_read, x_si = cv.odom_from_cdr(data)
+            stamp_read, frame_read, x_si = cdr.odom_from_cdr(data)
             ref = _rclpy_odom_fields(data)
             assert (stamp_read, frame_read) == ref[:2]
             assert np.array_equal(x_si, ref[2]) and x_si.dtype == np.float64
             padded = data + b"\x00" * 4   # padding a transport may add at the end: still in place
-            assert cv.odom_from_cdr(padded)[1] == frame
+            assert cdr.odom_from_cdr(padded)[1] == frame
     data = serialize_message(cv.odom_msg(X, 42, "deputy"))
     # Another layout than Odometry's (here: longer) is left to rclpy, which reads what it can.
-    stamp, frame, x_si = cv.odom_from_cdr(data + b"\x00" * 16)
+    stamp, frame, x_si = cdr.odom_from_cdr(data + b"\x00" * 16)
     assert (stamp, frame) == (42, "eci") and np.array_equal(x_si, _rclpy_odom_fields(data)[2])
     for bad in (b"", b"\x00\x01\x00\x00", data[:60], data[:-8], b"\x00\x01\x00\x00" + b"\xff" * 712,
                 b"\x00\x00\x00\x00" + data[4:]):
         with pytest.raises(cv.MessageError, match="undecodable odometry"):
-            cv.odom_from_cdr(bad)
+            cdr.odom_from_cdr(bad)
 
 
 def test_acceleration_round_trip_and_limits() -> None:
@@ -143,15 +143,15 @@ def test_cdr_stamp_of_serialised_messages() -> None:
     stamp = 1735689600 * 10**9 + 987654321
     for msg in (cv.odom_msg(X, stamp, "chief"), cv.clock_msg(stamp), cv.accel_msg([0, 0, 0], stamp),
                 cv.time_shift_msg(stamp, -1.0, "hold"), cv.diagnostic("n", "ok", "m", stamp)):
-        assert cv.cdr_stamp_ns(serialize_message(msg)) == stamp
+        assert cdr.cdr_stamp_ns(serialize_message(msg)) == stamp
     with pytest.raises(cv.MessageError):
-        cv.cdr_stamp_ns(b"\x00\x01\x00")
+        cdr.cdr_stamp_ns(b"\x00\x01\x00")
     # a MarkerArray is stamped by its first marker; an empty one has no stamp
     shapes = SceneBuilder(load_config(), 6).moving(np.array([1.0, 2.0, 3.0]), None)
     arr = serialize_message(cv.markers_msg(shapes, stamp))
-    assert cv.cdr_stamp_ns(arr, "visualization_msgs/msg/MarkerArray") == stamp
+    assert cdr.cdr_stamp_ns(arr, "visualization_msgs/msg/MarkerArray") == stamp
     with pytest.raises(cv.MessageError):
-        cv.cdr_stamp_ns(serialize_message(cv.markers_msg([], stamp)), "visualization_msgs/msg/MarkerArray")
+        cdr.cdr_stamp_ns(serialize_message(cv.markers_msg([], stamp)), "visualization_msgs/msg/MarkerArray")
 
 
 def test_scene_and_telemetry_messages() -> None:
@@ -328,8 +328,8 @@ def test_a_reused_message_serialises_as_a_fresh_one():
     with ``out`` a publisher's own message: after any earlier use each gives the same CDR bytes as
     rclpy's serialize_message of a message built afresh."""
     rng = np.random.default_rng(3)
-    odom = {"chief": cv.OdometryCdr("chief", False), "deputy": cv.OdometryCdr("deputy", False)}
-    odom_cov = {"chief": cv.OdometryCdr("chief", True), "deputy": cv.OdometryCdr("deputy", True)}
+    odom = {"chief": cdr.OdometryCdr("chief", False), "deputy": cdr.OdometryCdr("deputy", False)}
+    odom_cov = {"chief": cdr.OdometryCdr("chief", True), "deputy": cdr.OdometryCdr("deputy", True)}
     accel = cv.accel_msg(np.zeros(3), 0)
     clock = cv.clock_msg(0)
     for stamp in (1_700_000_000_123_456_789, 1_700_000_010_000_000_000, 5):
