@@ -94,15 +94,17 @@ class SimNode(Node):
         self.pub_truth_chief = self.readiness.publisher(Odometry, TRUTH_CHIEF, QOS_STREAM)
         self.pub_truth_deputy = self.readiness.publisher(Odometry, TRUTH_DEPUTY, QOS_STREAM)
         self.pub_truth_accel = self.readiness.publisher(AccelStamped, TRUTH_ACCEL, QOS_STREAM)
-        # Each publisher's own message, filled in place every step: the states serialised
-        # (cdr.OdometryCdr, published raw), the others as messages (cv.clock_msg's, cv.accel_msg's ``out``).
-        self.out = {"clock": cv.clock_msg(0), "truth_accel": cv.accel_msg(np.zeros(3), 0)}
+        # Each publisher's own message, filled in place every step: the states and the applied
+        # thrust serialised (cikan_ros.ros.cdr, published raw), the clock as a message (cv.clock_msg's ``out``).
+        self.clock = cv.clock_msg(0)
+        self.truth_accel = cdr.AccelCdr()
         self.step_diag: DiagnosticArray | None = None   # the per-step record, refilled (cv.diagnostic's ``out``)
         self.serialised = {"truth_chief": cdr.OdometryCdr("chief", False),
                            "truth_deputy": cdr.OdometryCdr("deputy", False),
                            "chief": cdr.OdometryCdr("chief", True), "deputy": cdr.OdometryCdr("deputy", True)}
-        self.sub_accel = self.readiness.subscription(AccelStamped, ACCEL_CMD, self.on_accel, QOS_STREAM)
-        self.sub_shift = self.readiness.subscription(TimeReference, TIME_SHIFT, self.on_shift, QOS_STREAM)
+        # Raw: the command and the shift are read from their CDR bytes (cikan_ros.ros.cdr).
+        self.sub_accel = self.readiness.subscription(AccelStamped, ACCEL_CMD, self.on_accel, QOS_STREAM, raw=True)
+        self.sub_shift = self.readiness.subscription(TimeReference, TIME_SHIFT, self.on_shift, QOS_STREAM, raw=True)
         self.pub_scene = {TELEMETRY: self.readiness.publisher(JointState, TELEMETRY, QOS_STREAM)}
         self.pub_scene.update({t: self.readiness.publisher(MarkerArray, t, QOS_STREAM)
                                for t in (SCENE_MARKERS, SCENE_PATH, SCENE_CONSTRAINTS)})
@@ -162,7 +164,7 @@ class SimNode(Node):
         self.pub_chief.publish(states["chief"](truth.measure_chief(self.k), stamp, 0.0 * cov))
         self.pub_deputy.publish(states["deputy"](x_seen, stamp, cov))
         self.t_published = time.perf_counter()
-        self.pub_clock.publish(cv.clock_msg(stamp, self.out["clock"]))
+        self.pub_clock.publish(cv.clock_msg(stamp, self.clock))
         self.pub_truth_chief.publish(states["truth_chief"](self.x_c, stamp))
         self.pub_truth_deputy.publish(states["truth_deputy"](self.x, stamp))
         if self.loop.finished(self.k, self.x, self.x_c, self.stop_on_dock):
@@ -172,14 +174,19 @@ class SimNode(Node):
         self.wait_timer.reset()
         return False
 
-    def on_accel(self, msg: AccelStamped) -> None:
-        stamp = cv.time_to_ns(msg.header.stamp)
+    def on_accel(self, data: bytes) -> None:
+        """A serialised AccelStamped (raw subscription): the command of a step."""
+        try:
+            stamp, frame, a_si = cdr.accel_from_cdr(data)
+        except cv.MessageError as exc:
+            self.reject(f"command rejected: {exc}", self.stamp())
+            return
         if not self.waiting or stamp != self.stamp():
             self.lost = False  # the controller is alive again; its next answer will be awaited
             self.reject(f"stale command stamped {stamp} ns (expected {self.stamp()} ns)", stamp)
             return
         try:
-            u = cv.accel_from_msg(msg, self.u_max)
+            u = cv.accel_from_si(frame, a_si, self.u_max)
         except cv.MessageError as exc:
             self.reject(f"command rejected: {exc}", stamp)
             return
@@ -228,7 +235,7 @@ class SimNode(Node):
         else:
             ended = self.publish_state()
         stamp = self.timeline.stamp_ns(k)
-        self.pub_truth_accel.publish(cv.accel_msg(u, stamp, self.out["truth_accel"]))
+        self.pub_truth_accel.publish(self.truth_accel(u, stamp))
         m = margins(x, x_c, u, self.cfg.constraints, self.u_limit, self.cfg.side)
         between = between_violations(self.cfg, path, self.truth.chief_path(k))
         level = "ok" if source == "command" else "warn"
@@ -244,10 +251,11 @@ class SimNode(Node):
             self.publish_scene()
 
     # -- telemetry and scene --------------------------------------------------------------------
-    def on_shift(self, msg: TimeReference) -> None:
-        """A time shift: kept for the telemetry and the scene of its step (never for control)."""
+    def on_shift(self, data: bytes) -> None:
+        """A serialised time shift (raw subscription): kept for the telemetry and the scene of its
+        step (never for control)."""
         try:
-            stamp, tau, _source = cv.shift_from_msg(msg, self.cfg.side)
+            stamp, tau, _source = cv.shift_from_times(*cdr.shift_from_cdr(data), self.cfg.side)
         except cv.MessageError:
             return  # the controller reports a bad shift; the scene holds the last good one
         self.shifts.setdefault(stamp, tau)

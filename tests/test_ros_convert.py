@@ -11,8 +11,10 @@ import numpy as np
 import pytest
 import yaml
 from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import AccelStamped
 from nav_msgs.msg import Odometry
 from rclpy.serialization import deserialize_message, serialize_message
+from sensor_msgs.msg import TimeReference
 
 from cikan_ros.config import Side, load_config
 from cikan_ros.errors import ConfigError
@@ -61,6 +63,37 @@ def test_odometry_round_trip_is_what_the_offline_loop_sees() -> None:
     msg.header.frame_id = "map"
     with pytest.raises(cv.MessageError, match="frame"):
         cv.state_from_odom(*cdr.odom_from_cdr(serialize_message(msg))[1:])
+
+
+def test_command_and_shift_read_in_place_are_what_rclpy_deserialises() -> None:
+    """accel_from_cdr and shift_from_cdr read an AccelStamped's and a TimeReference's fields from
+    the CDR bytes as rclpy's deserialiser does, for frames and sources of every length (they move
+    the alignment); other bytes go through rclpy, and bytes nothing decodes are a MessageError."""
+    rng = np.random.default_rng(11)
+    for frame in ("eci", "", "m", "lvlh_frame"):
+        for stamp in (0, 5, 1_735_689_600_123_456_789):
+            msg = cv.accel_msg(rng.normal(size=3) * 1e-4, stamp)
+            msg.header.frame_id = frame
+            data = serialize_message(msg)
+            ref = deserialize_message(data, AccelStamped)
+            a = ref.accel.linear
+            got = cdr.accel_from_cdr(data)
+            assert got[:2] == (cv.time_to_ns(ref.header.stamp), frame) and np.array_equal(got[2], [a.x, a.y, a.z])
+            for source in ("", "hold", "bisect", "nn-accepted"):
+                shift = cv.time_shift_msg(stamp, -ns_to_seconds(int(rng.integers(0, 10**12))), source)
+                shift.header.frame_id = frame
+                data = serialize_message(shift)
+                ref = deserialize_message(data, TimeReference)
+                expected = (cv.time_to_ns(ref.header.stamp), cv.time_to_ns(ref.time_ref), ref.source)
+                assert cdr.shift_from_cdr(data) == expected
+                assert cdr.shift_from_cdr(data + b"\x00" * 3) == expected      # trailing padding
+    data = serialize_message(cv.time_shift_msg(7, -2.5, "hold"))
+    assert cdr.shift_from_cdr(data + b"\x00" * 8) == (7, 7 - 2_500_000_000, "hold")   # via rclpy
+    for bad in (b"", b"\x00\x01\x00\x00", data[:20], b"\x00\x01\x00\x00" + b"\xff" * 40):
+        with pytest.raises(cv.MessageError, match="undecodable time shift"):
+            cdr.shift_from_cdr(bad)
+        with pytest.raises(cv.MessageError, match="undecodable acceleration"):
+            cdr.accel_from_cdr(bad)
 
 
 def _rclpy_odom_fields(data: bytes) -> tuple[int, str, list[float]]:
@@ -324,13 +357,13 @@ def test_odometry_carries_the_state_covariance_in_si() -> None:
 
 
 def test_a_reused_message_serialises_as_a_fresh_one():
-    """OdometryCdr refills a publisher's serialised Odometry in place, and accel_msg and clock_msg
+    """OdometryCdr and AccelCdr refill a publisher's serialised message in place, and clock_msg
     with ``out`` a publisher's own message: after any earlier use each gives the same CDR bytes as
     rclpy's serialize_message of a message built afresh."""
     rng = np.random.default_rng(3)
     odom = {"chief": cdr.OdometryCdr("chief", False), "deputy": cdr.OdometryCdr("deputy", False)}
     odom_cov = {"chief": cdr.OdometryCdr("chief", True), "deputy": cdr.OdometryCdr("deputy", True)}
-    accel = cv.accel_msg(np.zeros(3), 0)
+    accel = cdr.AccelCdr()
     clock = cv.clock_msg(0)
     for stamp in (1_700_000_000_123_456_789, 1_700_000_010_000_000_000, 5):
         x = rng.normal(size=6) * [7000, 7000, 7000, 7, 7, 7]
@@ -348,7 +381,7 @@ def test_a_reused_message_serialises_as_a_fresh_one():
                 assert odom_cov[child](x, stamp, c) == fresh(c)
         with pytest.raises(ValueError, match="covariance"):
             odom["chief"](x, stamp, cov)
-        assert serialize_message(cv.accel_msg(u, stamp, accel)) == serialize_message(cv.accel_msg(u, stamp))
+        assert accel(u, stamp) == serialize_message(cv.accel_msg(u, stamp))   # "eci": no padding
         assert serialize_message(cv.clock_msg(stamp, clock)) == serialize_message(cv.clock_msg(stamp))
 
 

@@ -154,15 +154,12 @@ def state_from_odom(frame_id: str, x_si: ArrayLike) -> NDArray:
 
 
 # -- commands -----------------------------------------------------------------------------------
-def accel_msg(u_kmps2: ArrayLike, stamp_ns: int, out: AccelStamped | None = None) -> AccelStamped:
-    """geometry_msgs/AccelStamped (linear, m/s^2, ECI) of an acceleration in km/s^2 (``out``:
-    a publisher's own message, filled in place and returned)."""
+def accel_msg(u_kmps2: ArrayLike, stamp_ns: int) -> AccelStamped:
+    """geometry_msgs/AccelStamped (linear, m/s^2, ECI) of an acceleration in km/s^2 (a publisher
+    that sends one every step serialises it with :class:`cikan_ros.ros.cdr.AccelCdr` instead)."""
     u = km_to_m(u_kmps2)
-    if out is None:
-        msg = AccelStamped()
-        msg.header.frame_id = FRAME_ECI
-    else:
-        msg = out
+    msg = AccelStamped()
+    msg.header.frame_id = FRAME_ECI
     set_stamp(msg.header.stamp, stamp_ns)
     a = msg.accel.linear
     a.x, a.y, a.z = (float(w) for w in u)
@@ -170,12 +167,18 @@ def accel_msg(u_kmps2: ArrayLike, stamp_ns: int, out: AccelStamped | None = None
 
 
 def accel_from_msg(msg: AccelStamped, u_max_kmps2: float) -> NDArray:
-    """Commanded acceleration (km/s^2) of an AccelStamped; MessageError if non-finite, in another
-    frame, or above the thrust limit (beyond rounding)."""
-    if msg.header.frame_id != FRAME_ECI:
-        raise MessageError(f"acceleration frame must be {FRAME_ECI!r}, got {msg.header.frame_id!r}")
+    """Commanded acceleration (km/s^2) of an AccelStamped (see :func:`accel_from_si`)."""
     a = msg.accel.linear
-    u = m_to_km(_finite(np.array([a.x, a.y, a.z]), "acceleration command"))
+    return accel_from_si(msg.header.frame_id, [a.x, a.y, a.z], u_max_kmps2)
+
+
+def accel_from_si(frame_id: str, a_si: ArrayLike, u_max_kmps2: float) -> NDArray:
+    """Commanded acceleration (km/s^2) of an AccelStamped's ``header.frame_id`` and linear
+    acceleration (m/s^2; :func:`cikan_ros.ros.cdr.accel_from_cdr`); MessageError if non-finite,
+    in another frame, or above the thrust limit (beyond rounding)."""
+    if frame_id != FRAME_ECI:
+        raise MessageError(f"acceleration frame must be {FRAME_ECI!r}, got {frame_id!r}")
+    u = m_to_km(_finite(np.array(a_si, dtype=float), "acceleration command"))
     if float(np.linalg.norm(u)) > u_max_kmps2 * (1.0 + 1e-9):
         raise MessageError(f"acceleration command |u| = {np.linalg.norm(u) * 1e3:.6g} m/s^2 exceeds "
                            f"the thrust limit {u_max_kmps2 * 1e3:g} m/s^2")
@@ -200,14 +203,19 @@ def time_shift_msg(stamp_ns: int, tau_s: float, source: str) -> TimeReference:
 
 
 def shift_from_msg(msg: TimeReference, side: Side) -> tuple[int, float, str]:
-    """(stamp ns, tau s, source) of a TimeReference; MessageError unless tau lies on the
+    """(stamp ns, tau s, source) of a TimeReference (see :func:`shift_from_times`)."""
+    return shift_from_times(time_to_ns(msg.header.stamp), time_to_ns(msg.time_ref), msg.source, side)
+
+
+def shift_from_times(stamp_ns: int, time_ref_ns: int, source: str, side: Side) -> tuple[int, float, str]:
+    """(stamp ns, tau s, source) of a TimeReference's header.stamp, time_ref (absolute ns) and
+    source (:func:`cikan_ros.ros.cdr.shift_from_cdr`); MessageError unless tau lies on the
     mission's ``side`` of 0 (BEHIND: tau <= 0, the deputy behind the chief; AHEAD: tau >= 0)."""
-    stamp = time_to_ns(msg.header.stamp)
-    tau_ns = time_to_ns(msg.time_ref) - stamp
+    tau_ns = time_ref_ns - stamp_ns
     if side * tau_ns < 0:
         raise MessageError(f"time shift must be {'<=' if side < 0 else '>='} 0 "
                            f"(mission.approach {side.approach}), got {tau_ns} ns")
-    return stamp, ns_to_seconds(tau_ns), msg.source
+    return stamp_ns, ns_to_seconds(tau_ns), source
 
 
 # -- diagnostics --------------------------------------------------------------------------------
