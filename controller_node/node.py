@@ -17,7 +17,6 @@ from __future__ import annotations
 import time
 from typing import Any
 
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import AccelStamped
 from nav_msgs.msg import Odometry
@@ -28,7 +27,7 @@ from sensor_msgs.msg import TimeReference
 from cikan_ros.ancillary import OFFLINE_ONLY as ANCILLARY_OFFLINE_ONLY
 from cikan_ros.errors import ConfigError
 from cikan_ros.mission import ClosedLoop
-from cikan_ros.ros import convert as cv
+from cikan_ros.ros import cdr, convert as cv
 from cikan_ros.ros.graph import QOS_STREAM, Readiness, qos_for, run_node
 from cikan_ros.ros.graph_spec import (PATH_HOLD, ACCEL_CMD, CHIEF_ODOM, DEPUTY_ODOM, DIAGNOSTICS, TIME_SHIFT,
                                       required_publishers, required_readers)
@@ -65,14 +64,16 @@ class ControllerNode(Node):
         self.lost = False
         self.pending: dict[int, dict[str, Any]] = {}
         self.pub_accel = self.readiness.publisher(AccelStamped, ACCEL_CMD, QOS_STREAM)
-        self.accel_out = cv.accel_msg(np.zeros(3), 0)  # the publisher's own message, filled in place
+        self.accel_out = cdr.AccelCdr()  # the publisher's own message, serialised and refilled in place
         self.pub_diag = self.readiness.publisher(DiagnosticArray, DIAGNOSTICS, qos_for(DIAGNOSTICS))
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.deadline = self.create_timer(deadline, self.on_deadline, clock=steady, autostart=False)
         self.lost_deadline = self.create_timer(lost, self.on_deadline, clock=steady, autostart=False)
-        subs = [self.readiness.subscription(Odometry, DEPUTY_ODOM, self.on_deputy, QOS_STREAM),
-                self.readiness.subscription(Odometry, CHIEF_ODOM, self.on_chief, QOS_STREAM),
-                self.readiness.subscription(TimeReference, TIME_SHIFT, self.on_shift, QOS_STREAM)]
+        # Raw: the states and the shift are read from their CDR bytes (cikan_ros.ros.cdr), not
+        # deserialised whole.
+        subs = [self.readiness.subscription(Odometry, DEPUTY_ODOM, self.on_deputy, QOS_STREAM, raw=True),
+                self.readiness.subscription(Odometry, CHIEF_ODOM, self.on_chief, QOS_STREAM, raw=True),
+                self.readiness.subscription(TimeReference, TIME_SHIFT, self.on_shift, QOS_STREAM, raw=True)]
         waits = [(self.pub_accel, required_readers(ACCEL_CMD, peers)),
                  (self.pub_diag, required_readers(DIAGNOSTICS, peers))]
         # Ready once the sim's states and the governor's shift are matched (the sim waits for it):
@@ -87,17 +88,22 @@ class ControllerNode(Node):
         self.get_logger().warning(text)
         self.diag("warn", text, stamp, {"event": "rejected"})
 
-    def on_deputy(self, msg: Odometry) -> None:
-        self.on_state(msg, "deputy", "x")
+    def on_deputy(self, data: bytes) -> None:
+        self.on_state(data, "deputy", "x")
 
-    def on_chief(self, msg: Odometry) -> None:
-        self.on_state(msg, "chief", "xc")
+    def on_chief(self, data: bytes) -> None:
+        self.on_state(data, "chief", "xc")
 
-    def on_state(self, msg: Odometry, who: str, key: str) -> None:
-        stamp = cv.time_to_ns(msg.header.stamp)
+    def on_state(self, data: bytes, who: str, key: str) -> None:
+        """A serialised Odometry (raw subscription): the state of a step."""
+        try:
+            stamp, frame, x_si = cdr.odom_from_cdr(data)
+        except cv.MessageError as exc:
+            self.reject(f"{who} state rejected: {exc}", max(self.last_stamp, self.timeline.epoch_ns))
+            return
         try:
             k = self.timeline.step(stamp)
-            x = cv.state_from_odom(msg)
+            x = cv.state_from_odom(frame, x_si)
         except cv.MessageError as exc:
             self.reject(f"{who} state rejected: {exc}", stamp)
             return
@@ -109,12 +115,18 @@ class ControllerNode(Node):
         self.pending.setdefault(stamp, {})[key] = x
         self.try_command(stamp)
 
-    def on_shift(self, msg: TimeReference) -> None:
+    def on_shift(self, data: bytes) -> None:
+        """A serialised TimeReference (raw subscription): the shift of a step."""
         try:
-            stamp, tau, source = cv.shift_from_msg(msg, self.cfg.side)
+            stamp, time_ref, source = cdr.shift_from_cdr(data)
+        except cv.MessageError as exc:
+            self.reject(f"time shift rejected: {exc}", max(self.last_stamp, self.timeline.epoch_ns))
+            return
+        try:
+            stamp, tau, source = cv.shift_from_times(stamp, time_ref, source, self.cfg.side)
             self.timeline.step(stamp)
         except cv.MessageError as exc:
-            self.reject(f"time shift rejected: {exc}", cv.time_to_ns(msg.header.stamp))
+            self.reject(f"time shift rejected: {exc}", stamp)
             return
         self.lost = False  # the governor is alive: wait for it again
         if stamp <= self.last_stamp:
@@ -159,7 +171,7 @@ class ControllerNode(Node):
         self.lost_deadline.cancel()
         self.waiting = None
         u = self.loop.command(self.timeline.step(stamp), tau, x_d, x_c)
-        self.pub_accel.publish(cv.accel_msg(u, stamp, self.accel_out))
+        self.pub_accel.publish(self.accel_out(u, stamp))
         self.tau = tau
         self.last_stamp = stamp
         for s in [s for s in self.pending if s <= stamp]:

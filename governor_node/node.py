@@ -25,7 +25,7 @@ from sensor_msgs.msg import TimeReference
 from cikan_ros.governor import warm_up
 from cikan_ros.mission import ClosedLoop, nominal_start
 from cikan_ros.registry import make_governor
-from cikan_ros.ros import convert as cv
+from cikan_ros.ros import cdr, convert as cv
 from cikan_ros.ros.graph import QOS_LATCHED, QOS_STREAM, Readiness, qos_for, run_node
 from cikan_ros.ros.graph_spec import (PATH_HOLD, CHIEF_ODOM, DEPUTY_ODOM, DIAGNOSTICS, GOVERNOR_INFO, TIME_SHIFT,
                                       required_publishers, required_readers)
@@ -60,7 +60,8 @@ class GovernorNode(Node):
         self.pub_diag = self.readiness.publisher(DiagnosticArray, DIAGNOSTICS, qos_for(DIAGNOSTICS))
         self.requested = name
         self.add_on_set_parameters_callback(self.on_parameters)
-        subs = [self.readiness.subscription(Odometry, t, lambda m, w=w: self.on_odom(w, m), QOS_STREAM)
+        # Raw: the states are read from their CDR bytes (cdr.odom_from_cdr), not deserialised whole.
+        subs = [self.readiness.subscription(Odometry, t, lambda m, w=w: self.on_odom(w, m), QOS_STREAM, raw=True)
                 for t, w in ((CHIEF_ODOM, "chief"), (DEPUTY_ODOM, "deputy"))]
         waits = [(self.pub_tau, required_readers(TIME_SHIFT, peers)),
                  (self.pub_diag, required_readers(DIAGNOSTICS, peers))]
@@ -114,11 +115,16 @@ class GovernorNode(Node):
         self.pub_diag.publish(cv.diagnostic(NAME, level, text, stamp, {"governor": self.governor.name,
                                                                          **values}))
 
-    def on_odom(self, which: str, msg: Odometry) -> None:
-        stamp = cv.time_to_ns(msg.header.stamp)
+    def on_odom(self, which: str, data: bytes) -> None:
+        try:
+            stamp, frame, x_si = cdr.odom_from_cdr(data)
+        except cv.MessageError as exc:
+            self.get_logger().warning(f"{which} state rejected: {exc}")
+            self.diag("warn", f"{which} state rejected: {exc}", {"event": "rejected"})
+            return
         try:
             k = self.timeline.step(stamp)
-            x = cv.state_from_odom(msg)
+            x = cv.state_from_odom(frame, x_si)
         except cv.MessageError as exc:
             self.get_logger().warning(f"{which} state rejected: {exc}")
             self.diag("warn", f"{which} state rejected: {exc}", {"event": "rejected"}, stamp)

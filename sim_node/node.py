@@ -2,12 +2,15 @@
 under the configured gravity, thruster errors and disturbance, ZOH), owns the lockstep and the clock
 (as fast as the graph answers, or paced by ``sim.max_rtf``).
 
-Step k: publish /clock = t_k, the MEASURED states on /chief/odom and /deputy/odom stamped t_k (SI,
-ECI, with the navigation covariance) and the true ones on /truth/chief/odom and /truth/deputy/odom;
-wait for the /deputy/accel_cmd stamped t_k; apply it through the thrusters (/truth/deputy/accel:
-the acceleration as applied); integrate to t_{k+1}; log the constraint margins on the truth, the
-applied thrust and the truth states violating h1 or h3 at the plant's substeps strictly between
-t_k and t_{k+1} (``between_violations``: the substeps are not recorded) in /diagnostics. A command that does not come within ``sim.command_deadline_s`` (wall) is
+Step k: publish the MEASURED states on /chief/odom and /deputy/odom stamped t_k (SI, ECI, with the
+navigation covariance), then /clock = t_k and the true ones on /truth/chief/odom and
+/truth/deputy/odom; wait for the /deputy/accel_cmd stamped t_k; apply it through the thrusters;
+integrate to t_{k+1} and publish the states of step k+1; then, while the governor and the
+controller work on those, log step k: the acceleration as applied (/truth/deputy/accel), the
+constraint margins on the truth, the applied thrust and the truth states violating h1 or h3 at
+the plant's substeps strictly between t_k and t_{k+1} (``between_violations``: the substeps are
+not recorded) in /diagnostics. (The bag is a sim-time record: every message of step k is
+stamped t_k, whatever the order it was sent in.) A command that does not come within ``sim.command_deadline_s`` (wall) is
 replaced by zero thrust and reported; after one miss the sim waits only ``sim.lost_deadline_s``
 per step until the controller answers again. Non-finite, out-of-range, off-grid or stale
 commands are rejected with a diagnostic. The process ends after T_sim (or docking, with
@@ -38,7 +41,7 @@ from visualization_msgs.msg import MarkerArray
 
 from cikan_ros.constraints import margins
 from cikan_ros.mission import ClosedLoop, between_violations, nominal_start, sample_start
-from cikan_ros.ros import convert as cv
+from cikan_ros.ros import cdr, convert as cv
 from cikan_ros.ros.graph import QOS_STREAM, PeerWatch, Readiness, qos_for, run_node
 from cikan_ros.ros.graph_spec import (ACCEL_CMD, CHIEF_ODOM, CLOCK, DEPUTY_ODOM, DIAGNOSTICS, SCENE_CONSTRAINTS,
                                       SCENE_MARKERS, SCENE_PATH, TELEMETRY, TIME_SHIFT, TRUTH_ACCEL,
@@ -91,17 +94,22 @@ class SimNode(Node):
         self.pub_truth_chief = self.readiness.publisher(Odometry, TRUTH_CHIEF, QOS_STREAM)
         self.pub_truth_deputy = self.readiness.publisher(Odometry, TRUTH_DEPUTY, QOS_STREAM)
         self.pub_truth_accel = self.readiness.publisher(AccelStamped, TRUTH_ACCEL, QOS_STREAM)
-        # Each publisher's own message, filled in place every step (cv.odom_msg's ``out``).
-        zero = np.zeros(6)
-        self.out = {"clock": cv.clock_msg(0), "truth_chief": cv.odom_msg(zero, 0, "chief"),
-                    "truth_deputy": cv.odom_msg(zero, 0, "deputy"), "chief": cv.odom_msg(zero, 0, "chief"),
-                    "deputy": cv.odom_msg(zero, 0, "deputy"), "truth_accel": cv.accel_msg(zero[:3], 0)}
-        self.sub_accel = self.readiness.subscription(AccelStamped, ACCEL_CMD, self.on_accel, QOS_STREAM)
-        self.sub_shift = self.readiness.subscription(TimeReference, TIME_SHIFT, self.on_shift, QOS_STREAM)
+        # Each publisher's own message, filled in place every step: the states and the applied
+        # thrust serialised (cikan_ros.ros.cdr, published raw), the clock as a message (cv.clock_msg's ``out``).
+        self.clock = cv.clock_msg(0)
+        self.truth_accel = cdr.AccelCdr()
+        self.step_diag: DiagnosticArray | None = None   # the per-step record, refilled (cv.diagnostic's ``out``)
+        self.serialised = {"truth_chief": cdr.OdometryCdr("chief", False),
+                           "truth_deputy": cdr.OdometryCdr("deputy", False),
+                           "chief": cdr.OdometryCdr("chief", True), "deputy": cdr.OdometryCdr("deputy", True)}
+        # Raw: the command and the shift are read from their CDR bytes (cikan_ros.ros.cdr).
+        self.sub_accel = self.readiness.subscription(AccelStamped, ACCEL_CMD, self.on_accel, QOS_STREAM, raw=True)
+        self.sub_shift = self.readiness.subscription(TimeReference, TIME_SHIFT, self.on_shift, QOS_STREAM, raw=True)
         self.pub_scene = {TELEMETRY: self.readiness.publisher(JointState, TELEMETRY, QOS_STREAM)}
         self.pub_scene.update({t: self.readiness.publisher(MarkerArray, t, QOS_STREAM)
                                for t in (SCENE_MARKERS, SCENE_PATH, SCENE_CONSTRAINTS)})
         self.scene = SceneStream(cfg, pred)
+        self.warm_up(pred)
         self.shifts: dict[int, float] = {}      # stamp -> tau (s) of the shifts not yet used
         self.steps: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []  # (k, x_c, x_d, u) awaiting a shift
         self.tau_held = float("nan")
@@ -119,44 +127,66 @@ class SimNode(Node):
                                      (self.sub_shift, required_publishers(TIME_SHIFT, peers))], timeout,
                              self.start, self.peers.missing)
 
+    def warm_up(self, pred: Predictor) -> None:
+        """Load every compiled kernel a step uses (the plant, the margins, the telemetry and the
+        scene) once on the start state, answers discarded, before the node is ready: no step of
+        the lockstep pays for loading them (measured: ~25 ms at the first step otherwise, most of it
+        while the governor and the controller already work on the next). The scene's on a stream of
+        its own: this one's messages begin at step 0."""
+        x_c, u = self.truth.chief_state(0), np.zeros(3)
+        path = self.truth.deputy_path(0, self.x, u)
+        margins(self.x, x_c, u, self.cfg.constraints, self.u_limit, self.cfg.side)
+        between_violations(self.cfg, path, self.truth.chief_path(0))
+        stamp = self.timeline.stamp_ns(0)
+        SceneStream(self.cfg, pred).step(0, stamp, self.timeline.seconds(stamp), x_c, self.x, u, 0.0)
+
     # -- lockstep -------------------------------------------------------------------------------
     def start(self) -> None:
         self.get_logger().info(f"lockstep start: {self.n_steps} steps of {self.cfg.control.period_s:g} s")
         self.wall0 = time.perf_counter()
-        self.publish_state()
+        if self.publish_state():
+            self.finish()
 
     def stamp(self) -> int:
         return self.timeline.stamp_ns(self.k)
 
-    def publish_state(self) -> None:
-        """Publish the states of step k, then wait for its command (or end the mission)."""
+    def publish_state(self) -> bool:
+        """Publish the states of step k, then wait for its command; True when the mission ends at
+        this state instead (the caller then finishes it: :meth:`finish`).
+
+        The measured states go out first: the governor and the controller wait for them; /clock
+        and the truth (for the recorder) follow while they work."""
         stamp = self.stamp()
         truth = self.truth
         self.x_c = truth.chief_state(self.k)
         x_seen, cov = truth.measure_deputy(self.k, self.x)
-        out = self.out  # each publisher's own message, filled in place (cv.odom_msg)
-        self.pub_clock.publish(cv.clock_msg(stamp, out["clock"]))
-        self.pub_truth_chief.publish(cv.odom_msg(self.x_c, stamp, "chief", out=out["truth_chief"]))
-        self.pub_truth_deputy.publish(cv.odom_msg(self.x, stamp, "deputy", out=out["truth_deputy"]))
-        self.pub_chief.publish(cv.odom_msg(truth.measure_chief(self.k), stamp, "chief", 0.0 * cov,
-                                           out=out["chief"]))
-        self.pub_deputy.publish(cv.odom_msg(x_seen, stamp, "deputy", cov, out=out["deputy"]))
-        if self.loop.finished(self.k, self.x, self.x_c, self.stop_on_dock):
-            self.finish()
-            return
-        self.waiting = True
+        states = self.serialised
+        self.pub_chief.publish(states["chief"](truth.measure_chief(self.k), stamp, 0.0 * cov))
+        self.pub_deputy.publish(states["deputy"](x_seen, stamp, cov))
         self.t_published = time.perf_counter()
+        self.pub_clock.publish(cv.clock_msg(stamp, self.clock))
+        self.pub_truth_chief.publish(states["truth_chief"](self.x_c, stamp))
+        self.pub_truth_deputy.publish(states["truth_deputy"](self.x, stamp))
+        if self.loop.finished(self.k, self.x, self.x_c, self.stop_on_dock):
+            return True
+        self.waiting = True
         self.wait_timer = self.lost_deadline if self.lost else self.deadline
         self.wait_timer.reset()
+        return False
 
-    def on_accel(self, msg: AccelStamped) -> None:
-        stamp = cv.time_to_ns(msg.header.stamp)
+    def on_accel(self, data: bytes) -> None:
+        """A serialised AccelStamped (raw subscription): the command of a step."""
+        try:
+            stamp, frame, a_si = cdr.accel_from_cdr(data)
+        except cv.MessageError as exc:
+            self.reject(f"command rejected: {exc}", self.stamp())
+            return
         if not self.waiting or stamp != self.stamp():
             self.lost = False  # the controller is alive again; its next answer will be awaited
             self.reject(f"stale command stamped {stamp} ns (expected {self.stamp()} ns)", stamp)
             return
         try:
-            u = cv.accel_from_msg(msg, self.u_max)
+            u = cv.accel_from_si(frame, a_si, self.u_max)
         except cv.MessageError as exc:
             self.reject(f"command rejected: {exc}", stamp)
             return
@@ -181,41 +211,51 @@ class SimNode(Node):
                                             {"k": self.k, "event": "rejected", "stamp_ns": stamp}))
 
     def apply(self, u: np.ndarray, source: str) -> None:
-        """Log the margins of step k with the applied thrust u (km/s^2), then integrate to k+1."""
+        """Integrate step k with the applied thrust u (km/s^2) to k+1 and publish the states of
+        k+1; then, while the governor and the controller work on them, log step k: the thrust as
+        applied, its margins and the violations between the samples, its telemetry and scene."""
         self.deadline.cancel()
         self.lost_deadline.cancel()
         self.waiting = False
         ms = (time.perf_counter() - self.t_published) * 1e3
+        k, x_c, x = self.k, self.x_c, self.x
         if source == "command":
-            decision = self.k == 0 or self.loop.update_due(self.k)
+            decision = k == 0 or self.loop.update_due(k)
             (self.latency_update_ms if decision else self.latency_ms).append(ms)
         u = self.truth.applied_thrust(u)  # through the thrusters: the acceleration as applied
-        self.pub_truth_accel.publish(cv.accel_msg(u, self.stamp(), self.out["truth_accel"]))
-        m = margins(self.x, self.x_c, u, self.cfg.constraints, self.u_limit, self.cfg.side)
-        path = self.truth.deputy_path(self.k, self.x, u)
-        between = between_violations(self.cfg, path, self.truth.chief_path(self.k))
-        level = "ok" if source == "command" else "warn"
-        text = "step" if source == "command" else "controller missed its deadline: zero thrust"
-        self.pub_diag.publish(cv.diagnostic(NAME, level, text, self.stamp(), {
-            "k": self.k, "event": "step", "thrust": source, "u_kmps2": u,
-            "h1_normalised": m.h1_normalised[0], "h2_kmps2": m.h2[0], "h3_kmps": m.h3[0],
-            "between_violations": between, "latency_ms": ms}))
-        self.steps.append((self.k, self.x_c, self.x, u))
+        path = self.truth.deputy_path(k, x, u)
+        self.steps.append((k, x_c, x, u))
         self.x = path[-1]
         self.k += 1
         pause = self.wall0 + self.k * self.cfg.control.period_s / self.max_rtf - time.perf_counter() \
             if self.max_rtf > 0 else 0.0
         if pause > 0:
             self.pace = self.create_timer(pause, lambda k=self.k: self.paced(k), clock=self.steady)
+            ended = False
         else:
-            self.publish_state()
-        self.publish_scene()
+            ended = self.publish_state()
+        stamp = self.timeline.stamp_ns(k)
+        self.pub_truth_accel.publish(self.truth_accel(u, stamp))
+        m = margins(x, x_c, u, self.cfg.constraints, self.u_limit, self.cfg.side)
+        between = between_violations(self.cfg, path, self.truth.chief_path(k))
+        level = "ok" if source == "command" else "warn"
+        text = "step" if source == "command" else "controller missed its deadline: zero thrust"
+        self.step_diag = cv.diagnostic(NAME, level, text, stamp, {
+            "k": k, "event": "step", "thrust": source, "u_kmps2": u,
+            "h1_normalised": m.h1_normalised[0], "h2_kmps2": m.h2[0], "h3_kmps": m.h3[0],
+            "between_violations": between, "latency_ms": ms}, self.step_diag)
+        self.pub_diag.publish(self.step_diag)
+        if ended:
+            self.finish()
+        else:
+            self.publish_scene()
 
     # -- telemetry and scene --------------------------------------------------------------------
-    def on_shift(self, msg: TimeReference) -> None:
-        """A time shift: kept for the telemetry and the scene of its step (never for control)."""
+    def on_shift(self, data: bytes) -> None:
+        """A serialised time shift (raw subscription): kept for the telemetry and the scene of its
+        step (never for control)."""
         try:
-            stamp, tau, _source = cv.shift_from_msg(msg, self.cfg.side)
+            stamp, tau, _source = cv.shift_from_times(*cdr.shift_from_cdr(data), self.cfg.side)
         except cv.MessageError:
             return  # the controller reports a bad shift; the scene holds the last good one
         self.shifts.setdefault(stamp, tau)
@@ -252,7 +292,8 @@ class SimNode(Node):
             return
         self.destroy_timer(self.pace)
         self.pace = None
-        self.publish_state()
+        if self.publish_state():
+            self.finish()
 
     def finish(self) -> None:
         wall = time.perf_counter() - self.wall0

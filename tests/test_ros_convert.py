@@ -10,11 +10,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import AccelStamped
+from nav_msgs.msg import Odometry
 from rclpy.serialization import deserialize_message, serialize_message
+from sensor_msgs.msg import TimeReference
 
 from cikan_ros.config import Side, load_config
 from cikan_ros.errors import ConfigError
-from cikan_ros.ros import convert as cv
+from cikan_ros.ros import cdr, convert as cv
 from cikan_ros.ros.bag_writer import BagWriter, qos_dict, schema_text, type_hash
 from cikan_ros.ros.graph import QOS_PROFILES, QOS_STREAM, qos_for
 from cikan_ros.ros.graph_spec import QOS_KINDS, TOPICS
@@ -44,20 +48,87 @@ def test_stamps_are_exact_and_on_the_control_grid() -> None:
 
 
 def test_odometry_round_trip_is_what_the_offline_loop_sees() -> None:
-    msg = deserialize_message(serialize_message(cv.odom_msg(X, 123, "deputy")), type(cv.odom_msg(X, 1, "d")))
+    data = serialize_message(cv.odom_msg(X, 123, "deputy"))
+    msg = deserialize_message(data, Odometry)
     assert msg.header.frame_id == "eci" and msg.child_frame_id == "deputy"
     assert msg.pose.pose.position.x == X[0] * 1000.0                  # SI on the wire
-    np.testing.assert_array_equal(cv.state_from_odom(msg), through_si(X))
-    msg.twist.twist.linear.y = float("inf")
+    stamp, frame, x_si = cdr.odom_from_cdr(data)
+    assert (stamp, frame) == (123, "eci")
+    np.testing.assert_array_equal(cv.state_from_odom(frame, x_si), through_si(X))
     with pytest.raises(cv.MessageError, match="non-finite"):
-        cv.state_from_odom(msg)
-    msg = cv.odom_msg(np.array([0.1, 0, 0, 0, 0, 0]), 0, "deputy")
+        cv.state_from_odom("eci", [X[0], X[1], X[2], 0.0, float("inf"), 0.0])
     with pytest.raises(cv.MessageError, match="Earth's centre"):
-        cv.state_from_odom(msg)
-    msg = cv.odom_msg(X, 0, "deputy")
+        cv.state_from_odom(*cdr.odom_from_cdr(serialize_message(cv.odom_msg(np.array([0.1, 0, 0, 0, 0, 0]), 0,
+                                                                           "deputy")))[1:])
     msg.header.frame_id = "map"
     with pytest.raises(cv.MessageError, match="frame"):
-        cv.state_from_odom(msg)
+        cv.state_from_odom(*cdr.odom_from_cdr(serialize_message(msg))[1:])
+
+
+def test_command_and_shift_read_in_place_are_what_rclpy_deserialises() -> None:
+    """accel_from_cdr and shift_from_cdr read an AccelStamped's and a TimeReference's fields from
+    the CDR bytes as rclpy's deserialiser does, for frames and sources of every length (they move
+    the alignment); other bytes go through rclpy, and bytes nothing decodes are a MessageError."""
+    rng = np.random.default_rng(11)
+    for frame in ("eci", "", "m", "lvlh_frame"):
+        for stamp in (0, 5, 1_735_689_600_123_456_789):
+            msg = cv.accel_msg(rng.normal(size=3) * 1e-4, stamp)
+            msg.header.frame_id = frame
+            data = serialize_message(msg)
+            ref = deserialize_message(data, AccelStamped)
+            a = ref.accel.linear
+            got = cdr.accel_from_cdr(data)
+            assert got[:2] == (cv.time_to_ns(ref.header.stamp), frame) and np.array_equal(got[2], [a.x, a.y, a.z])
+            for source in ("", "hold", "bisect", "nn-accepted"):
+                shift = cv.time_shift_msg(stamp, -ns_to_seconds(int(rng.integers(0, 10**12))), source)
+                shift.header.frame_id = frame
+                data = serialize_message(shift)
+                ref = deserialize_message(data, TimeReference)
+                expected = (cv.time_to_ns(ref.header.stamp), cv.time_to_ns(ref.time_ref), ref.source)
+                assert cdr.shift_from_cdr(data) == expected
+                assert cdr.shift_from_cdr(data + b"\x00" * 3) == expected      # trailing padding
+    data = serialize_message(cv.time_shift_msg(7, -2.5, "hold"))
+    assert cdr.shift_from_cdr(data + b"\x00" * 8) == (7, 7 - 2_500_000_000, "hold")   # via rclpy
+    for bad in (b"", b"\x00\x01\x00\x00", data[:20], b"\x00\x01\x00\x00" + b"\xff" * 40):
+        with pytest.raises(cv.MessageError, match="undecodable time shift"):
+            cdr.shift_from_cdr(bad)
+        with pytest.raises(cv.MessageError, match="undecodable acceleration"):
+            cdr.accel_from_cdr(bad)
+
+
+def _rclpy_odom_fields(data: bytes) -> tuple[int, str, list[float]]:
+    """The reference: what rclpy's own deserialiser reads from serialised Odometry."""
+    msg = deserialize_message(data, Odometry)
+    p, v = msg.pose.pose.position, msg.twist.twist.linear
+    return cv.time_to_ns(msg.header.stamp), msg.header.frame_id, [p.x, p.y, p.z, v.x, v.y, v.z]
+
+
+def test_odometry_read_in_place_is_what_rclpy_deserialises() -> None:
+    """odom_from_cdr reads stamp, frame and state from the CDR bytes as rclpy's deserialiser does,
+    bit for bit, whatever the frame names' lengths (they move the doubles' alignment) and the
+    covariance; bytes in another encoding or layout go through rclpy, and bytes nothing can
+    decode are a MessageError."""
+    rng = np.random.default_rng(7)
+    for frame, child in (("eci", "deputy"), ("eci", "chief"), ("map", ""), ("", "c"), ("earth_fixed", "ab")):
+        for stamp in (0, 5, 1_735_689_600_123_456_789, 2**31 * 10**9 - 1):
+            x = rng.normal(size=6) * [7000, 7000, 7000, 7, 7, 7]
+            msg = cv.odom_msg(x, stamp, child, np.diag(rng.uniform(0, 1e-6, 6)))
+            msg.header.frame_id = frame
+            data = serialize_message(msg)
+            stamp_read, frame_read, x_si = cdr.odom_from_cdr(data)
+            ref = _rclpy_odom_fields(data)
+            assert (stamp_read, frame_read) == ref[:2]
+            assert np.array_equal(x_si, ref[2]) and x_si.dtype == np.float64
+            padded = data + b"\x00" * 4   # padding a transport may add at the end: still in place
+            assert cdr.odom_from_cdr(padded)[1] == frame
+    data = serialize_message(cv.odom_msg(X, 42, "deputy"))
+    # Another layout than Odometry's (here: longer) is left to rclpy, which reads what it can.
+    stamp, frame, x_si = cdr.odom_from_cdr(data + b"\x00" * 16)
+    assert (stamp, frame) == (42, "eci") and np.array_equal(x_si, _rclpy_odom_fields(data)[2])
+    for bad in (b"", b"\x00\x01\x00\x00", data[:60], data[:-8], b"\x00\x01\x00\x00" + b"\xff" * 712,
+                b"\x00\x00\x00\x00" + data[4:]):
+        with pytest.raises(cv.MessageError, match="undecodable odometry"):
+            cdr.odom_from_cdr(bad)
 
 
 def test_acceleration_round_trip_and_limits() -> None:
@@ -105,15 +176,15 @@ def test_cdr_stamp_of_serialised_messages() -> None:
     stamp = 1735689600 * 10**9 + 987654321
     for msg in (cv.odom_msg(X, stamp, "chief"), cv.clock_msg(stamp), cv.accel_msg([0, 0, 0], stamp),
                 cv.time_shift_msg(stamp, -1.0, "hold"), cv.diagnostic("n", "ok", "m", stamp)):
-        assert cv.cdr_stamp_ns(serialize_message(msg)) == stamp
+        assert cdr.cdr_stamp_ns(serialize_message(msg)) == stamp
     with pytest.raises(cv.MessageError):
-        cv.cdr_stamp_ns(b"\x00\x01\x00")
+        cdr.cdr_stamp_ns(b"\x00\x01\x00")
     # a MarkerArray is stamped by its first marker; an empty one has no stamp
     shapes = SceneBuilder(load_config(), 6).moving(np.array([1.0, 2.0, 3.0]), None)
     arr = serialize_message(cv.markers_msg(shapes, stamp))
-    assert cv.cdr_stamp_ns(arr, "visualization_msgs/msg/MarkerArray") == stamp
+    assert cdr.cdr_stamp_ns(arr, "visualization_msgs/msg/MarkerArray") == stamp
     with pytest.raises(cv.MessageError):
-        cv.cdr_stamp_ns(serialize_message(cv.markers_msg([], stamp)), "visualization_msgs/msg/MarkerArray")
+        cdr.cdr_stamp_ns(serialize_message(cv.markers_msg([], stamp)), "visualization_msgs/msg/MarkerArray")
 
 
 def test_scene_and_telemetry_messages() -> None:
@@ -286,20 +357,52 @@ def test_odometry_carries_the_state_covariance_in_si() -> None:
 
 
 def test_a_reused_message_serialises_as_a_fresh_one():
-    """odom_msg, accel_msg and clock_msg with ``out`` fill a publisher's own message in place: after
-    any earlier use it serialises to the same CDR bytes as a message built afresh."""
+    """OdometryCdr and AccelCdr refill a publisher's serialised message in place, and clock_msg
+    with ``out`` a publisher's own message: after any earlier use each gives the same CDR bytes as
+    rclpy's serialize_message of a message built afresh."""
     rng = np.random.default_rng(3)
-    odom = cv.odom_msg(np.zeros(6), 0, "deputy")
-    odom_cov = cv.odom_msg(np.zeros(6), 0, "deputy")
-    accel = cv.accel_msg(np.zeros(3), 0)
+    odom = {"chief": cdr.OdometryCdr("chief", False), "deputy": cdr.OdometryCdr("deputy", False)}
+    odom_cov = {"chief": cdr.OdometryCdr("chief", True), "deputy": cdr.OdometryCdr("deputy", True)}
+    accel = cdr.AccelCdr()
     clock = cv.clock_msg(0)
     for stamp in (1_700_000_000_123_456_789, 1_700_000_010_000_000_000, 5):
         x = rng.normal(size=6) * [7000, 7000, 7000, 7, 7, 7]
-        cov = np.diag(rng.uniform(0, 1e-6, 6))
+        cov = rng.normal(size=(6, 6)) * 1e-7    # any sign: -0.0 of a zeroed covariance too
         u = rng.normal(size=3) * 1e-4
-        assert serialize_message(cv.odom_msg(x, stamp, "deputy", out=odom)) == \
-            serialize_message(cv.odom_msg(x, stamp, "deputy"))
-        assert serialize_message(cv.odom_msg(x, stamp, "deputy", cov, out=odom_cov)) == \
-            serialize_message(cv.odom_msg(x, stamp, "deputy", cov))
-        assert serialize_message(cv.accel_msg(u, stamp, accel)) == serialize_message(cv.accel_msg(u, stamp))
+        for child, pad in (("chief", slice(30, 36)), ("deputy", slice(31, 36))):
+            # The same bytes but the alignment padding after child_frame_id, which rclpy leaves
+            # uninitialised (OdometryCdr: zeros).
+            def fresh(*cov_km: np.ndarray) -> bytearray:
+                data = bytearray(serialize_message(cv.odom_msg(x, stamp, child, *cov_km)))
+                data[pad] = bytes(pad.stop - pad.start)
+                return data
+            assert odom[child](x, stamp) == fresh()
+            for c in (cov, 0.0 * cov):
+                assert odom_cov[child](x, stamp, c) == fresh(c)
+        with pytest.raises(ValueError, match="covariance"):
+            odom["chief"](x, stamp, cov)
+        assert accel(u, stamp) == serialize_message(cv.accel_msg(u, stamp))   # "eci": no padding
         assert serialize_message(cv.clock_msg(stamp, clock)) == serialize_message(cv.clock_msg(stamp))
+
+
+def test_a_refilled_diagnostic_is_the_fresh_one() -> None:
+    """diagnostic with ``out`` refills a message of the same name and keys (level, message, stamp
+    and values may change) and is then equal, field by field and after a CDR round trip, to one
+    built afresh; another name or other keys get a new message."""
+    rng = np.random.default_rng(5)
+    out = None
+    for k, stamp in enumerate((1_700_000_000_123_456_789, 5, 1_700_000_010_000_000_000)):
+        values = {"k": k, "event": "step", "u_kmps2": rng.normal(size=3) * 1e-4, "h3_kmps": float("nan"),
+                  "between_violations": k % 2, "latency_ms": float(rng.uniform())}
+        level, text = ("ok", "step") if k != 1 else ("warn", "controller missed its deadline: zero thrust")
+        refilled = cv.diagnostic("sim_node", level, text, stamp, values, out)
+        assert refilled is out or out is None
+        out = refilled
+        fresh = cv.diagnostic("sim_node", level, text, stamp, values)
+        # (compared as text: the messages' own == is field by field, and NaN != NaN)
+        assert str(deserialize_message(serialize_message(refilled), DiagnosticArray)) == str(fresh)
+        assert cv.diagnostic_values(refilled.status[0])["latency_ms"] == repr(values["latency_ms"])
+    for name, values in (("other_node", {"k": 3, "event": "step", "u_kmps2": 0.0, "h3_kmps": 0.0,
+                                         "between_violations": 0, "latency_ms": 0.0}), ("sim_node", {"k": 3})):
+        new = cv.diagnostic(name, "ok", "step", 7, values, out)
+        assert new is not out and str(new) == str(cv.diagnostic(name, "ok", "step", 7, values))

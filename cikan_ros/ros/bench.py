@@ -9,6 +9,10 @@
   decision is as fast as the others).
 - ros_decision_ms_max: the longest governor decision of the mission (first-instant search or
   update), as governor_node timed it.
+- ros_cpu_per_step_ms: CPU time (user + system) of all the graph's processes per lockstep step:
+  the mission's less that of a mission of :data:`SHORT_STEPS` steps (start-up, warm-up and
+  shut-down), over the difference in steps. On a machine with few cores the lockstep's rtf is
+  bound by it, not only by the chain of a step (sim -> governor -> controller -> sim).
 - The same mission once more with the other executor (``ros_single_*``): the comparison behind
   the choice of executor (cikan_ros.ros.graph.make_executor).
 - The same mission once more with the mission-control view following its bag (``ros_view_*``,
@@ -18,6 +22,7 @@
 
 from __future__ import annotations
 
+import resource
 import shutil
 import tempfile
 from pathlib import Path
@@ -31,14 +36,25 @@ from ..errors import CikanError
 #: the bag's path; returns the process (something with terminate() and wait()).
 Follower = Callable[[Path], Any]
 
+#: The steps of the short mission whose CPU is the graph's fixed cost (ros_cpu_per_step_ms).
+SHORT_STEPS = 10
+
+
+def children_cpu_s() -> float:
+    """CPU seconds (user + system) of this process's children that ended and were waited for."""
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
 
 def lockstep_figures(cfg: Config, executor: str, follow: Follower | None = None) -> dict[str, Any]:
     """rtf, step latency and wall times of one mission with every node on ``executor``, with a
-    ``follow`` process reading its bag when given."""
+    ``follow`` process reading its bag when given; ``cpu_s``: the CPU of all its processes (the
+    follower's too), ``steps``: the steps flown."""
     from .launch import node_environment, run_ros_mission
 
     tmp = Path(tempfile.mkdtemp(prefix="cikan_bench_"))
     follower = None
+    cpu0 = children_cpu_s()
     try:
         with node_environment("CIKAN_ROS_EXECUTOR", executor):
             follower = follow(tmp / "bag") if follow is not None else None
@@ -48,8 +64,9 @@ def lockstep_figures(cfg: Config, executor: str, follow: Follower | None = None)
             follower.terminate()
             follower.wait()
         shutil.rmtree(tmp, ignore_errors=True)
+    cpu = children_cpu_s() - cpu0
     ros = m["ros"]
-    missing = [k for k in ("rtf", "step_ms_p50", "step_ms_p99", "update_step_ms_max", "wall_s")
+    missing = [k for k in ("rtf", "step_ms_p50", "step_ms_p99", "update_step_ms_max", "wall_s", "steps")
                if k not in ros]
     if missing:  # the simulator's closing summary (a /diagnostics message) is not in the bag
         raise CikanError(f"the ROS benchmark mission ({executor} executor) recorded no lockstep "
@@ -57,17 +74,23 @@ def lockstep_figures(cfg: Config, executor: str, follow: Follower | None = None)
     return {"rtf": ros["rtf"], "step_ms_p50": ros["step_ms_p50"], "step_ms_p99": ros["step_ms_p99"],
             "update_step_ms_max": ros["update_step_ms_max"],
             "decision_ms_max": max(m["initial_ms"], m["update_ms_max"]), "lockstep_wall_s": ros["wall_s"],
-            "mission_wall_s": ros["launch_wall_s"], "mission_success": m["success"]}
+            "mission_wall_s": ros["launch_wall_s"], "mission_success": m["success"],
+            "cpu_s": cpu, "steps": int(ros["steps"])}
 
 
 def ros_section(cfg: Config, _states: Any, _repeats: int, follow: Follower | None = None) -> dict[str, Any]:
     """ros_* figures with the chosen executor (EventsExecutor), ros_single_* with the other, and
     ros_view_* with the chosen one and ``follow`` (the view) reading the bag, when given."""
     events = lockstep_figures(cfg, "events")
+    # After a full mission, so that its fixed cost is the graph's, not the first compilation's.
+    short = lockstep_figures(cfg.replace(**{"mission.duration_s": SHORT_STEPS * cfg.control.period_s}), "events")
     single = lockstep_figures(cfg, "single")
-    out = {**{f"ros_{k}": v for k, v in events.items()},
-           **{f"ros_single_{k}": v for k, v in single.items() if k != "mission_success"}}
+    runs = {"ros": events, "ros_single": single}
     if follow is not None:
-        viewed = lockstep_figures(cfg, "events", follow)
-        out.update({f"ros_view_{k}": v for k, v in viewed.items() if k != "mission_success"})
+        runs["ros_view"] = lockstep_figures(cfg, "events", follow)
+    out: dict[str, Any] = {}
+    for prefix, figures in runs.items():
+        cpu, steps = figures.pop("cpu_s"), figures.pop("steps")
+        figures["cpu_per_step_ms"] = (cpu - short["cpu_s"]) / (steps - short["steps"]) * 1e3
+        out.update({f"{prefix}_{k}": v for k, v in figures.items() if prefix == "ros" or k != "mission_success"})
     return out

@@ -1,4 +1,5 @@
-"""Message <-> domain conversions: the only place where ROS messages meet library values.
+"""Message <-> domain conversions: the only place where ROS messages meet library values (with
+:mod:`cikan_ros.ros.cdr`, which reads and writes some of them serialised, in place).
 
 Library side: km, km/s, km/s^2 in ECI, times as whole nanoseconds since the mission epoch or
 seconds (``ns / 1e9``). Message side (REP 103): m, m/s, m/s^2, frame ``eci``, stamps as absolute
@@ -12,7 +13,6 @@ nodes turn it into a diagnostic and reject the message.
 
 from __future__ import annotations
 
-import struct
 from typing import Any, Mapping
 
 import numpy as np
@@ -101,29 +101,21 @@ def set_stamp(stamp: Time, ns: int) -> None:
     stamp.sec, stamp.nanosec = divmod(int(ns), NS_PER_S)
 
 
-def odom_msg(x_km: ArrayLike, stamp_ns: int, child_frame: str,
-             cov_km: ArrayLike | None = None, out: Odometry | None = None) -> Odometry:
+def odom_msg(x_km: ArrayLike, stamp_ns: int, child_frame: str, cov_km: ArrayLike | None = None) -> Odometry:
     """nav_msgs/Odometry of an ECI state [r (km); v (km/s)]: position in m, velocity in m/s.
 
     The orientation is the identity, so the child frame's axes are ECI's and the twist (expressed
     in the child frame, as nav_msgs asks) is the ECI velocity. ``cov_km`` (6, 6; km^2, km^2/s^2):
     the state's covariance, written in m^2 and m^2/s^2 into the position block of the pose
     covariance and the linear block of the twist covariance (orientation and angular rate are
-    not estimated: their blocks stay 0).
-
-    ``out``: an Odometry to fill in place and return instead of a new one (a publisher's own,
-    reused step after step: rclpy serialises at publish, and building the nested message takes
-    longer than the rest of this function); used for one topic, so that it is always given a
-    covariance or never.
+    not estimated: their blocks stay 0). A publisher that sends one every step serialises it
+    with :class:`cikan_ros.ros.cdr.OdometryCdr` instead.
     """
     x_m = km_to_m(x_km)
-    if out is None:
-        msg = Odometry()
-        msg.header.frame_id = FRAME_ECI
-        msg.child_frame_id = child_frame
-        msg.pose.pose.orientation.w = 1.0
-    else:
-        msg = out
+    msg = Odometry()
+    msg.header.frame_id = FRAME_ECI
+    msg.child_frame_id = child_frame
+    msg.pose.pose.orientation.w = 1.0
     set_stamp(msg.header.stamp, stamp_ns)
     p = msg.pose.pose.position
     p.x, p.y, p.z = (float(v) for v in x_m[:3])
@@ -149,28 +141,25 @@ def covariance_from_odom(msg: Odometry) -> NDArray:
     return out * 1e-6
 
 
-def state_from_odom(msg: Odometry) -> NDArray:
-    """ECI state [r (km); v (km/s)] of an Odometry message; MessageError if non-finite or degenerate."""
-    if msg.header.frame_id != FRAME_ECI:
-        raise MessageError(f"odometry frame must be {FRAME_ECI!r}, got {msg.header.frame_id!r}")
-    p = msg.pose.pose.position
-    v = msg.twist.twist.linear
-    x = m_to_km(_finite(np.array([p.x, p.y, p.z, v.x, v.y, v.z]), "odometry"))
+def state_from_odom(frame_id: str, x_si: ArrayLike) -> NDArray:
+    """ECI state [r (km); v (km/s)] of an Odometry's ``header.frame_id`` and its position and
+    linear velocity [m; m/s] (:func:`cikan_ros.ros.cdr.odom_from_cdr`); MessageError if not ECI,
+    non-finite or degenerate."""
+    if frame_id != FRAME_ECI:
+        raise MessageError(f"odometry frame must be {FRAME_ECI!r}, got {frame_id!r}")
+    x = m_to_km(_finite(np.array(x_si, dtype=float), "odometry"))
     if np.linalg.norm(x[:3]) < 1.0:
         raise MessageError(f"odometry position is within 1 km of Earth's centre: {x[:3].tolist()} km")
     return x
 
 
 # -- commands -----------------------------------------------------------------------------------
-def accel_msg(u_kmps2: ArrayLike, stamp_ns: int, out: AccelStamped | None = None) -> AccelStamped:
-    """geometry_msgs/AccelStamped (linear, m/s^2, ECI) of an acceleration in km/s^2 (``out``:
-    a publisher's own message, filled in place and returned)."""
+def accel_msg(u_kmps2: ArrayLike, stamp_ns: int) -> AccelStamped:
+    """geometry_msgs/AccelStamped (linear, m/s^2, ECI) of an acceleration in km/s^2 (a publisher
+    that sends one every step serialises it with :class:`cikan_ros.ros.cdr.AccelCdr` instead)."""
     u = km_to_m(u_kmps2)
-    if out is None:
-        msg = AccelStamped()
-        msg.header.frame_id = FRAME_ECI
-    else:
-        msg = out
+    msg = AccelStamped()
+    msg.header.frame_id = FRAME_ECI
     set_stamp(msg.header.stamp, stamp_ns)
     a = msg.accel.linear
     a.x, a.y, a.z = (float(w) for w in u)
@@ -178,12 +167,18 @@ def accel_msg(u_kmps2: ArrayLike, stamp_ns: int, out: AccelStamped | None = None
 
 
 def accel_from_msg(msg: AccelStamped, u_max_kmps2: float) -> NDArray:
-    """Commanded acceleration (km/s^2) of an AccelStamped; MessageError if non-finite, in another
-    frame, or above the thrust limit (beyond rounding)."""
-    if msg.header.frame_id != FRAME_ECI:
-        raise MessageError(f"acceleration frame must be {FRAME_ECI!r}, got {msg.header.frame_id!r}")
+    """Commanded acceleration (km/s^2) of an AccelStamped (see :func:`accel_from_si`)."""
     a = msg.accel.linear
-    u = m_to_km(_finite(np.array([a.x, a.y, a.z]), "acceleration command"))
+    return accel_from_si(msg.header.frame_id, [a.x, a.y, a.z], u_max_kmps2)
+
+
+def accel_from_si(frame_id: str, a_si: ArrayLike, u_max_kmps2: float) -> NDArray:
+    """Commanded acceleration (km/s^2) of an AccelStamped's ``header.frame_id`` and linear
+    acceleration (m/s^2; :func:`cikan_ros.ros.cdr.accel_from_cdr`); MessageError if non-finite,
+    in another frame, or above the thrust limit (beyond rounding)."""
+    if frame_id != FRAME_ECI:
+        raise MessageError(f"acceleration frame must be {FRAME_ECI!r}, got {frame_id!r}")
+    u = m_to_km(_finite(np.array(a_si, dtype=float), "acceleration command"))
     if float(np.linalg.norm(u)) > u_max_kmps2 * (1.0 + 1e-9):
         raise MessageError(f"acceleration command |u| = {np.linalg.norm(u) * 1e3:.6g} m/s^2 exceeds "
                            f"the thrust limit {u_max_kmps2 * 1e3:g} m/s^2")
@@ -208,14 +203,19 @@ def time_shift_msg(stamp_ns: int, tau_s: float, source: str) -> TimeReference:
 
 
 def shift_from_msg(msg: TimeReference, side: Side) -> tuple[int, float, str]:
-    """(stamp ns, tau s, source) of a TimeReference; MessageError unless tau lies on the
+    """(stamp ns, tau s, source) of a TimeReference (see :func:`shift_from_times`)."""
+    return shift_from_times(time_to_ns(msg.header.stamp), time_to_ns(msg.time_ref), msg.source, side)
+
+
+def shift_from_times(stamp_ns: int, time_ref_ns: int, source: str, side: Side) -> tuple[int, float, str]:
+    """(stamp ns, tau s, source) of a TimeReference's header.stamp, time_ref (absolute ns) and
+    source (:func:`cikan_ros.ros.cdr.shift_from_cdr`); MessageError unless tau lies on the
     mission's ``side`` of 0 (BEHIND: tau <= 0, the deputy behind the chief; AHEAD: tau >= 0)."""
-    stamp = time_to_ns(msg.header.stamp)
-    tau_ns = time_to_ns(msg.time_ref) - stamp
+    tau_ns = time_ref_ns - stamp_ns
     if side * tau_ns < 0:
         raise MessageError(f"time shift must be {'<=' if side < 0 else '>='} 0 "
                            f"(mission.approach {side.approach}), got {tau_ns} ns")
-    return stamp, ns_to_seconds(tau_ns), msg.source
+    return stamp_ns, ns_to_seconds(tau_ns), source
 
 
 # -- diagnostics --------------------------------------------------------------------------------
@@ -233,12 +233,24 @@ def _text(value: Any) -> str:
 
 
 def diagnostic(name: str, level: str, message: str, stamp_ns: int,
-               values: Mapping[str, Any] | None = None) -> DiagnosticArray:
-    """A DiagnosticArray with one status; values become KeyValue strings (floats exactly)."""
-    arr = DiagnosticArray()
-    arr.header.stamp = ns_to_time(stamp_ns)
-    arr.status = [_status(name, level, message, values)]
-    return arr
+               values: Mapping[str, Any] | None = None, out: DiagnosticArray | None = None) -> DiagnosticArray:
+    """A DiagnosticArray with one status; values become KeyValue strings (floats exactly).
+
+    ``out``: a publisher's own message from an earlier call, refilled in place and returned when
+    its status has this name and these keys in this order (the simulator's per-step record;
+    building a status of ten values afresh costs ~30 us), else a new one."""
+    values = values or {}
+    status = out.status[0] if out is not None and len(out.status) == 1 else None
+    if status is None or status.name != name or [kv.key for kv in status.values] != list(values):
+        arr = DiagnosticArray()
+        arr.header.stamp = ns_to_time(stamp_ns)
+        arr.status = [_status(name, level, message, values)]
+        return arr
+    set_stamp(out.header.stamp, stamp_ns)
+    status.level, status.message = LEVELS[level], message
+    for kv, value in zip(status.values, values.values()):
+        kv.value = _text(value)
+    return out
 
 
 def _status(name: str, level: str, message: str, values: Mapping[str, Any] | None) -> DiagnosticStatus:
@@ -351,29 +363,3 @@ class MarkerStream:
                 self.markers[key] = (m, (km_to_m(shape.points), list(m.points)))
             out.append(m)
         return MarkerArray(markers=out)
-
-
-# -- raw CDR ------------------------------------------------------------------------------------
-#: Types whose serialised form starts with a sequence of stamped messages (not a Time): their
-#: stamp is the first element's (CDR: the uint32 length, then that element's header).
-_SEQUENCE_FIRST = {"visualization_msgs/msg/MarkerArray"}
-
-
-def cdr_stamp_ns(data: bytes, type_name: str = "") -> int:
-    """Stamp of a serialised message whose first field is a Time (a Header or rosgraph Clock), or,
-    for a type of :data:`_SEQUENCE_FIRST` (``type_name``), of its first element.
-
-    CDR: 4-byte encapsulation header (byte 1 = 0x01 little-endian), then int32 sec, uint32 nanosec
-    (after the uint32 sequence length for a sequence; MessageError when it is empty).
-    """
-    offset = 4
-    fmt_len = "<I" if len(data) > 1 and data[1] & 1 else ">I"
-    if type_name in _SEQUENCE_FIRST:
-        if len(data) < 8 or struct.unpack_from(fmt_len, data, 4)[0] == 0:
-            raise MessageError(f"serialised {type_name} has no element to take a stamp from")
-        offset = 8
-    if len(data) < offset + 8:
-        raise MessageError(f"serialised message of {len(data)} bytes is too short for a stamp")
-    fmt = "<iI" if data[1] & 1 else ">iI"
-    sec, nsec = struct.unpack_from(fmt, data, offset)
-    return sec * NS_PER_S + nsec

@@ -29,6 +29,7 @@ from rclpy.node import Node
 from rclpy.task import Future
 
 from . import convert as cv
+from .cdr import cdr_stamp_ns
 from ..errors import ConfigError
 from .bag_writer import BagWriter, qos_dict
 from .graph import Readiness, qos_for, run_node
@@ -117,7 +118,7 @@ class RecorderNode(Node):
             qos = [qos_dict(info.qos_profile) for info in self.get_publishers_info_by_topic(topic)]
             self.bag.add_topic(topic, TOPIC_TYPES[topic], qos)
         try:
-            stamp = cv.cdr_stamp_ns(data, TOPIC_TYPES[topic])
+            stamp = cdr_stamp_ns(data, TOPIC_TYPES[topic])
         except cv.MessageError:
             stamp = time.time_ns()
         self.bag.write(topic, data, stamp)
