@@ -136,3 +136,23 @@ def test_realistic_robust_learned_section(realistic, tmp_path):
     (tmp_path / "leo-ahead.json").write_text("{not json")
     with pytest.raises(CikanError, match="leo-ahead.json"):
         bench_index(tmp_path)
+
+
+def test_a_configuration_that_refuses_every_start_is_reported_not_failed(tmp_path):
+    """Robust Verify refuses every LEO start from behind in the realistic truth (docs/results/
+    coverage.md): `cikan bench --json` says so as its result (exit code 0), and the scenario
+    index shows the row."""
+    import subprocess
+    import sys
+
+    from cikan_ros.analysis.table import bench_index
+
+    out = subprocess.run([sys.executable, "-m", "cikan_ros.cli", "bench", "--scenario", "leo", "--truth", "realistic",
+                          "--robust", "--missions", "2", "--json"], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr
+    b = json.loads(out.stdout)
+    assert b["refused"].startswith("Verify refuses all 2 starts") and b["n_missions_infeasible"] == 2
+    assert (b["scenario"], b["approach"], b["truth"], b["robust"]) == ("leo", "behind", "realistic", True)
+    (tmp_path / "leo-behind-robust.json").write_text(out.stdout)
+    row = bench_index(tmp_path).splitlines()[2]
+    assert row.startswith("| leo | behind | robust (realistic) | - | every start refused: Verify refuses all 2")

@@ -347,6 +347,10 @@ def bench_index(root: str | Path) -> str:
         except (OSError, ValueError) as exc:
             raise CikanError(f"cannot read bench file {f}: {exc}") from None
         verify = f"robust ({b.get('truth', 'nominal')})" if b.get("robust") else "nominal"
+        if "refused" in b:   # cikan bench: Verify refused every start (timing.EveryStartRefusedError)
+            lines.append(f"| {scenario} | {side} | {verify} | - | every start refused: {b['refused']} "
+                         "| - | - | - | - | - |")
+            continue
         foreign = b.get("learned_foreign_models") or {}
         for m in LEARNED_NAMES:
             if f"{m}_speedup_mean" not in b:

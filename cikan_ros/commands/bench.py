@@ -60,7 +60,16 @@ def run(args: argparse.Namespace) -> int:
 
     if args.missions < 1 or args.repeats < 1:
         raise ConfigError("--missions and --repeats must be >= 1")
-    figures = run_bench(config_from_args(args), args.missions, args.repeats)
+    from ..timing import EveryStartRefusedError
+
+    cfg = config_from_args(args)
+    try:
+        figures = run_bench(cfg, args.missions, args.repeats)
+    except EveryStartRefusedError as exc:
+        # A result, not a failure: what the scenario index shows for this configuration.
+        figures = {"refused": str(exc), "n_missions": args.missions, "n_missions_infeasible": args.missions,
+                   "scenario": cfg.scenario.name, "approach": cfg.mission.approach,
+                   "truth": cfg.truth.name, "robust": cfg.tsg.robust}
     if args.json:
         print(dumps(figures))
     else:
