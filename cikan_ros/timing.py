@@ -102,6 +102,11 @@ class BenchStates:
         """Missions asked for: flown, or with an infeasible start."""
         return len(self.starts) + len(self.infeasible_seeds)
 
+    @property
+    def seeds(self) -> list[int | None]:
+        """The seed of each start flown, in the order of ``starts`` (None: the nominal start)."""
+        return [s for s in [None] + list(range(1, self.n_missions)) if s not in self.infeasible_seeds]
+
 
 def is_nominal(cfg: Config) -> bool:
     """True when the configuration flies the nominal truth with nominal Verify: the benchmark

@@ -84,6 +84,11 @@ class ControllerNode(Node):
     def diag(self, level: str, text: str, stamp: int, values: dict[str, Any]) -> None:
         self.pub_diag.publish(cv.diagnostic(NAME, level, text, stamp, values))
 
+    def stamp_or_last(self, stamp: int | None) -> int:
+        """The stamp a rejection is reported at: the message's, or, when it could not be read,
+        the last step answered (the epoch before any)."""
+        return max(self.last_stamp, self.timeline.epoch_ns) if stamp is None else stamp
+
     def reject(self, text: str, stamp: int) -> None:
         self.get_logger().warning(text)
         self.diag("warn", text, stamp, {"event": "rejected"})
@@ -96,16 +101,13 @@ class ControllerNode(Node):
 
     def on_state(self, data: bytes, who: str, key: str) -> None:
         """A serialised Odometry (raw subscription): the state of a step."""
+        stamp = None   # unknown until the bytes are read
         try:
             stamp, frame, x_si = cdr.odom_from_cdr(data)
-        except cv.MessageError as exc:
-            self.reject(f"{who} state rejected: {exc}", max(self.last_stamp, self.timeline.epoch_ns))
-            return
-        try:
             k = self.timeline.step(stamp)
             x = cv.state_from_odom(frame, x_si)
         except cv.MessageError as exc:
-            self.reject(f"{who} state rejected: {exc}", stamp)
+            self.reject(f"{who} state rejected: {exc}", self.stamp_or_last(stamp))
             return
         if stamp <= self.last_stamp:
             self.reject(f"stale {who} state for step {k} rejected", stamp)
@@ -117,16 +119,13 @@ class ControllerNode(Node):
 
     def on_shift(self, data: bytes) -> None:
         """A serialised TimeReference (raw subscription): the shift of a step."""
+        stamp = None   # unknown until the bytes are read
         try:
             stamp, time_ref, source = cdr.shift_from_cdr(data)
-        except cv.MessageError as exc:
-            self.reject(f"time shift rejected: {exc}", max(self.last_stamp, self.timeline.epoch_ns))
-            return
-        try:
             stamp, tau, source = cv.shift_from_times(stamp, time_ref, source, self.cfg.side)
             self.timeline.step(stamp)
         except cv.MessageError as exc:
-            self.reject(f"time shift rejected: {exc}", stamp)
+            self.reject(f"time shift rejected: {exc}", self.stamp_or_last(stamp))
             return
         self.lost = False  # the governor is alive: wait for it again
         if stamp <= self.last_stamp:

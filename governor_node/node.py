@@ -116,13 +116,9 @@ class GovernorNode(Node):
                                                                          **values}))
 
     def on_odom(self, which: str, data: bytes) -> None:
+        stamp = None   # unknown until the bytes are read
         try:
             stamp, frame, x_si = cdr.odom_from_cdr(data)
-        except cv.MessageError as exc:
-            self.get_logger().warning(f"{which} state rejected: {exc}")
-            self.diag("warn", f"{which} state rejected: {exc}", {"event": "rejected"})
-            return
-        try:
             k = self.timeline.step(stamp)
             x = cv.state_from_odom(frame, x_si)
         except cv.MessageError as exc:

@@ -189,35 +189,35 @@ def mission_figures(conventional: Any, governors: list[Any], states: BenchStates
     "stall") and ``_mission_nn_accept_rate`` (share answered with the network's proposal,
     :func:`cikan_ros.learn.governor.nn_accept_rate`, pooled)."""
     from ..mission import run_mission
-    from .governor import SEARCHED
+    from .governor import SEARCHED, nn_accept_rate
 
-    names = [conventional.name] + [g.name for g in governors]
-    cpu: dict[str, list[list[float]]] = {n: [] for n in names}       # per start: active update CPU (s)
-    calls: dict[str, list[int]] = {n: [] for n in names}
-    paths: dict[str, list[str]] = {n: [] for n in names}
-    seeds = [s for s in [None] + list(range(1, states.n_missions)) if s not in states.infeasible_seeds]
-    for seed, x0 in zip(seeds, states.starts):
+    # per governor, per start: the active updates of its mission
+    flown: dict[str, list[list[Any]]] = {g.name: [] for g in [conventional] + governors}
+    for seed, x0 in zip(states.seeds, states.starts):
         for gov in [conventional] + governors:
             gov.anchor.current, gov.anchor.re_anchors = gov.anchor.base, 0
-            res = run_mission(gov, x0, seed)
-            active = [u for u in res.updates if u.active]
-            cpu[gov.name].append([u.cpu_s for u in active])
-            calls[gov.name] += [u.verify_calls for u in active]
-            paths[gov.name] += [u.path for u in active]
+            flown[gov.name].append([u for u in run_mission(gov, x0, seed).updates if u.active])
 
-    def mean(per_start: list[list[float]]) -> float:
-        return float(np.mean([c for start in per_start for c in start]))
+    def pooled(name: str) -> list[Any]:
+        return [u for start in flown[name] for u in start]
 
-    conv = mean(cpu[conventional.name])
+    def cpu_mean(updates: list[Any]) -> float:
+        return float(np.mean([u.cpu_s for u in updates]))
+
+    def calls_mean(updates: list[Any]) -> float:
+        return float(np.mean([u.verify_calls for u in updates]))
+
+    conv = cpu_mean(pooled(conventional.name))
     out: dict[str, Any] = {"mission_conventional_update_ms_mean": conv * 1e3,
-                           "mission_conventional_verify_calls_mean": float(np.mean(calls[conventional.name]))}
+                           "mission_conventional_verify_calls_mean": calls_mean(pooled(conventional.name))}
     for gov in governors:
-        g = gov.name
-        out[f"{g}_mission_update_ms_mean"] = mean(cpu[g]) * 1e3
-        out[f"{g}_mission_speedup_mean"] = conv / mean(cpu[g])
-        out[f"{g}_mission_speedup_worst"] = min(float(np.mean(c) / np.mean(m))
-                                                for c, m in zip(cpu[conventional.name], cpu[g]) if c and m)
-        out[f"{g}_mission_verify_calls_mean"] = float(np.mean(calls[g]))
-        out[f"{g}_search_rate"] = sum(p in SEARCHED for p in paths[g]) / len(paths[g])
-        out[f"{g}_mission_nn_accept_rate"] = paths[g].count(PATH_NN) / len(paths[g])
+        g, updates = gov.name, pooled(gov.name)
+        mean = cpu_mean(updates)
+        out[f"{g}_mission_update_ms_mean"] = mean * 1e3
+        out[f"{g}_mission_speedup_mean"] = conv / mean
+        out[f"{g}_mission_speedup_worst"] = min(cpu_mean(c) / cpu_mean(m)
+                                                for c, m in zip(flown[conventional.name], flown[g]) if c and m)
+        out[f"{g}_mission_verify_calls_mean"] = calls_mean(updates)
+        out[f"{g}_search_rate"] = sum(u.path in SEARCHED for u in updates) / len(updates)
+        out[f"{g}_mission_nn_accept_rate"] = nn_accept_rate(updates)
     return out

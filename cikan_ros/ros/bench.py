@@ -85,7 +85,7 @@ def ros_section(cfg: Config, states: Any, _repeats: int, follow: Follower | None
     ros_view_* with the chosen one and ``follow`` (the view) reading the bag, when given. Each
     flies the benchmark's first start that Verify accepts (``ros_seed``: None for the nominal
     start, which robust Verify may refuse, as in LEO from ahead)."""
-    seed = next(s for s in [None] + list(range(1, states.n_missions)) if s not in states.infeasible_seeds)
+    seed = states.seeds[0]
     events = lockstep_figures(cfg, "events", seed=seed)
     # After a full mission, so that its fixed cost is the graph's, not the first compilation's.
     short = lockstep_figures(cfg.replace(**{"mission.duration_s": SHORT_STEPS * cfg.control.period_s}), "events",
