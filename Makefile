@@ -113,6 +113,24 @@ controller-sweep: $(STAMP)
 	$(BIN)/cikan report runs/controller-sweep --robustness --out docs/results --name controller_sweep \
 		--title "Choosing the robust controller's weight: robust Verify, realistic truth, R = 1 to 1e8"
 
+# The same choice for another scenario and side (SCENARIO, APPROACH): the conventional TSG under
+# robust Verify, realistic truth, SCENARIO_SWEEP_RUNS Monte Carlo starts per weight, the nominal
+# reference beside it -> docs/results/scenarios/<scenario>-<side>/controller_sweep.md; the weight
+# chosen goes to the scenario file's control.robust_r_diag (docs/scenarios.md).
+SCENARIO_SWEEP_R    ?= 1.0e+3 1.0e+4 1.0e+5 1.0e+6 1.0e+7
+SCENARIO_SWEEP_RUNS ?= 40
+SCENARIO_SWEEP       = runs/controller-sweep/$(SCENARIO)-$(APPROACH)
+scenario-controller-sweep: $(STAMP)
+	$(BIN)/cikan montecarlo $(SCENARIO_ARGS) --runs $(SCENARIO_SWEEP_RUNS) --governor conventional --workers 2 \
+		--out $(SCENARIO_SWEEP)/nominal
+	for r in $(SCENARIO_SWEEP_R); do \
+	  $(BIN)/cikan montecarlo $(SCENARIO_ARGS) --runs $(SCENARIO_SWEEP_RUNS) --governor conventional --workers 2 \
+	    --truth realistic --robust --set "control.robust_r_diag=[$$r, $$r, $$r]" --out $(SCENARIO_SWEEP)/robust-r$$r || exit 1; \
+	done
+	$(BIN)/cikan report $(SCENARIO_SWEEP) --robustness --out docs/results/scenarios/$(SCENARIO)-$(APPROACH) \
+		--name controller_sweep --title "$(SWEEP_TITLE)"
+SWEEP_TITLE = Scenario $(SCENARIO), approach from $(APPROACH): choosing the robust controller's weight, robust Verify, realistic truth, $(SCENARIO_SWEEP_RUNS) Monte Carlo starts
+
 # The learned models at paper scale (`make -j2 models`, about 2.5 h on 2 cores, 1 h of it the labels): 1 M labels,
 # a TPE study of 30 pruned trials per family on the tau_prev-aware inputs (vnb-prev), then per
 # family, with the best trial's settings on all training labels, the state-only network
@@ -150,18 +168,25 @@ models-prev: $(addprefix prev-,$(FAMILIES))
 clean:
 	rm -rf $(VENV) build *.egg-info
 
-# Models per scenario and approach side (docs/scenarios.md): labels from the conventional TSG's
-# closed loops on the scenario (SCENARIO=paper|leo|geo|FILE, APPROACH=behind|ahead), then each
-# family of SCENARIO_FAMILIES trained with the paper's tuned architecture and hyper-parameters
-# (`cikan train --like models/<family>`), into the scenario's models directory
-# (scenario.models_dir: <dir>/<family> behind, <dir>/<family>-ahead ahead). E.g.
+# Models per scenario, approach side and Verify mode (docs/scenarios.md): labels from the
+# conventional TSG's closed loops on the scenario (SCENARIO=paper|leo|geo|FILE,
+# APPROACH=behind|ahead; VERIFY=robust: robust Verify flying the truth TRUTH, default realistic),
+# then each family of SCENARIO_FAMILIES trained with the paper's tuned architecture and
+# hyper-parameters (`cikan train --like models/<family>`), into the scenario's models directory
+# (scenario.models_dir: <dir>/<family> behind, <dir>/<family>-ahead ahead, -robust appended for
+# robust Verify). E.g.
 #   make scenario-models SCENARIO=leo APPROACH=ahead
+#   make scenario-models SCENARIO=geo VERIFY=robust
 SCENARIO          ?= paper
 APPROACH          ?= behind
+VERIFY            ?= nominal
+TRUTH             ?= realistic
 SCENARIO_LABELS   ?= 60000
 SCENARIO_FAMILIES ?= cikan relu
-SCENARIO_RUNS      = runs/scenarios/$(SCENARIO)-$(APPROACH)
-SCENARIO_ARGS      = --scenario $(SCENARIO) --set mission.approach=$(APPROACH)
+ROBUST_SUFFIX      = $(if $(filter robust,$(VERIFY)),-robust)
+SCENARIO_RUNS      = runs/scenarios/$(SCENARIO)-$(APPROACH)$(ROBUST_SUFFIX)
+SCENARIO_ARGS      = --scenario $(SCENARIO) --set mission.approach=$(APPROACH) \
+                     $(if $(filter robust,$(VERIFY)),--truth $(TRUTH) --robust)
 SCENARIO_TRAIN    ?= --epochs 30 --patience 6 --max-minutes 20 --threads 1 --quiet
 
 $(SCENARIO_RUNS)/labels.parquet: | $(STAMP)
@@ -173,6 +198,14 @@ scenario-models: $(SCENARIO_RUNS)/labels.parquet
 	for f in $(SCENARIO_FAMILIES); do \
 	  $(BIN)/cikan train $(SCENARIO_ARGS) --model $$f --like models/$$f --data $(SCENARIO_RUNS)/labels.parquet \
 	    --checkpoint-dir $(SCENARIO_RUNS)/checkpoints/$$f $(SCENARIO_TRAIN) || exit 1; \
+	done
+
+# The models of robust Verify (realistic truth) for every scenario and side where it accepts
+# starts: labels and SCENARIO_FAMILIES' models, as `make scenario-models VERIFY=robust` does for one.
+ROBUST_MODEL_SIDES ?= paper-behind paper-ahead leo-ahead geo-behind geo-ahead
+robust-models: $(STAMP)
+	for sa in $(ROBUST_MODEL_SIDES); do \
+	  $(MAKE) scenario-models VERIFY=robust SCENARIO=$${sa%-*} APPROACH=$${sa#*-} || exit 1; \
 	done
 
 # Results per scenario and approach side (docs/results/scenarios/): the conventional TSG and every

@@ -31,9 +31,9 @@ def campaign_names() -> list[str]:
 
 def shipped_names(cfg: Config) -> list[str]:
     """The conventional TSG and every learned family with a model for the configuration's
-    scenario and approach side (``scenario.models_dir``)."""
+    scenario, approach side and Verify mode (``scenario.models_dir``)."""
     return ["conventional"] + [n for n in LEARNED_NAMES if (scenario_model_dir(
-        cfg.scenario.models_dir, n, cfg.mission.approach) / CARD).is_file()]
+        cfg.scenario.models_dir, n, cfg.mission.approach, cfg.tsg.robust) / CARD).is_file()]
 
 
 def split_rule(name: str) -> tuple[str, str | None]:

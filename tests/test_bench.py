@@ -94,18 +94,24 @@ def test_realistic_robust_learned_section(realistic, tmp_path):
     from cikan_ros.analysis.table import bench_index
     from cikan_ros.registry import LEARNED_NAMES
     from cikan_ros.learn.bench import learned_section
+    from cikan_ros.learn.modelfile import MODELS_DIR
 
     cfg, states = realistic
-    # the shipped models learned nominal Verify's labels: refused under robust Verify ...
-    refused = learned_section(cfg, states, 1)
-    assert len(refused["learned_models_missing"]) == len(LEARNED_NAMES)
-    assert all("trained on labels of nominal Verify" in m for m in refused["learned_models_missing"])
-    # ... and flown when explicitly allowed, each named foreign in the report
+    # under robust Verify each family flies its model of robust Verify's labels (models/F-robust,
+    # shipped for CIKAN and ReLU); the others, with nominal labels only, are not flown ...
+    robust = [n for n in LEARNED_NAMES if (MODELS_DIR / f"{n}-robust" / "card.json").is_file()]
+    assert {"cikan", "relu"} <= set(robust)
+    own = learned_section(cfg, states, 1)
+    assert len(own["learned_models_missing"]) == len(LEARNED_NAMES) - len(robust)
+    assert all("no " in m and "model of robust Verify" in m for m in own["learned_models_missing"])
+    assert "learned_foreign_models" not in own
+    assert all(math.isfinite(own[f"{n}_mission_speedup_mean"]) for n in robust)
+    # ... unless explicitly allowed: then they fly their nominal models, each named foreign
     cfg = cfg.replace(**{"learned.foreign_model": True})
     out = conventional_section(cfg, states, 1)
     out.update(learned_section(cfg, states, 1))
     assert "learned_models_missing" not in out
-    assert sorted(out["learned_foreign_models"]) == sorted(LEARNED_NAMES)
+    assert sorted(out["learned_foreign_models"]) == sorted(set(LEARNED_NAMES) - set(robust))
     for name in LEARNED_NAMES:
         for k in ("speedup_mean", "speedup_worst", "verify_calls_mean", "nn_accept_rate",
                   "rmse_tau_s", "mission_speedup_mean", "mission_speedup_worst", "mission_verify_calls_mean",
@@ -118,7 +124,7 @@ def test_realistic_robust_learned_section(realistic, tmp_path):
     # from the file
     (tmp_path / "paper-behind-robust.json").write_text(json.dumps(out))
     rows = bench_index(tmp_path).splitlines()[2:]
-    assert [r.split(" | ")[3] for r in rows] == [f"{m} (foreign)" for m in LEARNED_NAMES]
+    assert [r.split(" | ")[3] for r in rows] == [m if m in robust else f"{m} (foreign)" for m in LEARNED_NAMES]
     cikan = rows[0].strip("| ").split(" | ")
     assert cikan[:3] == ["paper", "behind", "robust (realistic)"]
     assert cikan[4] == f"{out['cikan_mission_speedup_mean']:.2f} / {out['cikan_mission_speedup_worst']:.2f}"
@@ -139,16 +145,17 @@ def test_realistic_robust_learned_section(realistic, tmp_path):
 
 
 def test_a_configuration_that_refuses_every_start_is_reported_not_failed(tmp_path):
-    """Robust Verify refuses every LEO start from behind in the realistic truth (docs/results/
-    coverage.md): `cikan bench --json` says so as its result (exit code 0), and the scenario
-    index shows the row."""
+    """Robust Verify flying the paper orbit's controller weight (R = 1e7) refuses LEO's starts from
+    behind in the realistic truth (docs/results/scenarios/leo-behind/controller_sweep.md: 38 of 40):
+    `cikan bench --json` says so as its result (exit code 0), and the scenario index shows the row."""
     import subprocess
     import sys
 
     from cikan_ros.analysis.table import bench_index
 
     out = subprocess.run([sys.executable, "-m", "cikan_ros.cli", "bench", "--scenario", "leo", "--truth", "realistic",
-                          "--robust", "--missions", "2", "--json"], capture_output=True, text=True, timeout=600)
+                          "--robust", "--set", "control.robust_r_diag=[1.0e+7, 1.0e+7, 1.0e+7]", "--missions", "2",
+                          "--json"], capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr
     b = json.loads(out.stdout)
     assert b["refused"].startswith("Verify refuses all 2 starts") and b["n_missions_infeasible"] == 2

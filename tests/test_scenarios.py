@@ -227,3 +227,28 @@ def test_models_are_per_scenario_and_side(tmp_path: Path, capsys) -> None:
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert out["foreign_model"] == gov.foreign
     assert out["violations"] == 0 and out["success"]
+
+
+def test_robust_verify_flies_its_own_models(tmp_path: Path) -> None:
+    """Under robust Verify a family resolves to <models_dir>/<family>[-ahead]-robust and the
+    campaign's shipped list holds only those; with no robust model it is refused (naming the make
+    target), unless learned.foreign_model, and then the nominal model flies, foreign."""
+    from cikan_ros.learn.modelfile import check_dataset_labels, flown_model_dir
+    from cikan_ros.learn.errors import DatasetError
+    from cikan_ros.registry import shipped_names
+
+    assert scenario_model_dir(str(tmp_path), "relu", "ahead", True) == tmp_path / "relu-ahead-robust"
+    cfg = load_config(**{"scenario.models_dir": str(tmp_path), "tsg.robust": True})
+    shutil.copytree(MODELS_DIR / "cikan", tmp_path / "cikan")   # nominal labels only
+    assert shipped_names(cfg) == ["conventional"]
+    assert shipped_names(cfg.replace(**{"tsg.robust": False})) == ["conventional", "cikan"]
+    with pytest.raises(ModelFileError, match=r"no cikan model of robust Verify .* \(make scenario-models SCENARIO=paper VERIFY=robust TRUTH=nominal\)"):
+        make_governor("cikan", cfg)
+    allowed = cfg.replace(**{"learned.foreign_model": True})
+    assert flown_model_dir(allowed, "cikan") == tmp_path / "cikan"
+    assert make_governor("cikan", allowed).foreign.startswith("trained on labels of nominal Verify")
+    # A dataset of nominal labels does not train a robust model, and the other way round.
+    meta = {"config": cfg.replace(**{"tsg.robust": False}).flat()}
+    check_dataset_labels(meta, "d.parquet", cfg.replace(**{"tsg.robust": False}).flat())
+    with pytest.raises(DatasetError, match="holds labels of nominal Verify .* not of robust Verify"):
+        check_dataset_labels(meta, "d.parquet", cfg.flat())

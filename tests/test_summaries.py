@@ -63,23 +63,30 @@ def test_mission_summary_names_what_flew():
 
 
 def test_learned_mission_summary_names_its_model_and_acceptance():
-    """A shipped model (nominal Verify's labels) under robust Verify: refused with one line and
-    exit code 2; flown when allowed, its summary names it foreign, with its acceptance."""
+    """Under robust Verify a family flies its model of robust Verify's labels (models/cikan-robust);
+    at another truth scale that model is refused with one line and exit code 2; flown when allowed,
+    its summary names it foreign, with its acceptance."""
     flown = ["--offline", "--seed", "3", "--governor", "cikan", "--truth", "realistic", "--robust", *SHORT]
+    own = cikan("mission", *flown)
+    assert own.returncode in (0, 1), own.stderr
+    r = rows(own.stdout)
+    assert r["governor"].rstrip(")").endswith("models/cikan-robust") and "model" not in r   # not foreign
+    flown += ["--set", "truth.scale=0.5"]
     refused = cikan("mission", *flown)
     assert refused.returncode == 2 and len(refused.stderr.strip().splitlines()) == 1
-    assert "trained on labels of nominal Verify (controller R = 1), not of robust Verify" in refused.stderr
+    assert ("trained on labels of robust Verify (truth realistic at scale 1.0, controller R = 1e+07), not of "
+            "robust Verify (truth realistic at scale 0.5, controller R = 1e+07) (differs: truth.scale)") in refused.stderr
     flown += ["--set", "learned.foreign_model=true"]
     out = cikan("mission", *flown)
     js = cikan("mission", *flown, "--json")
     assert out.returncode in (0, 1) and js.returncode in (0, 1), out.stderr + js.stderr
     r = rows(out.stdout)
-    assert r["governor"].startswith("cikan (model ") and r["governor"].rstrip(")").endswith("models/cikan")
+    assert r["governor"].startswith("cikan (model ") and r["governor"].rstrip(")").endswith("models/cikan-robust")
     rate = json.loads(js.stdout)["nn_accept_rate"]
     assert r["network acceptance"] == f"{rate:.3f} (nn_accept_rate)"
     assert r["Verify"] == "robust (constraints tightened by the truth's bounds)"
-    assert r["model"].startswith("FOREIGN: trained on labels of nominal Verify")
-    assert json.loads(js.stdout)["foreign_model"].startswith("trained on labels of nominal Verify")
+    assert r["model"].startswith("FOREIGN: trained on labels of robust Verify (truth realistic at scale 1.0")
+    assert json.loads(js.stdout)["foreign_model"].endswith("(differs: truth.scale)")
 
 
 def test_montecarlo_summary_names_what_flew_in_one_unit(tmp_path):

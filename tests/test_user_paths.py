@@ -190,6 +190,10 @@ def test_models_page_is_the_committed_one(tmp_path: Path, capsys) -> None:
     assert len(card_rows(page)) == 2 + len(cards)           # header, rule, one row per model
     for c in cards:
         assert any(f"| {c.parent.relative_to(MODELS_DIR)} |" in line for line in card_rows(page)), c
+    # the Verify whose labels each model learned: robust for the F[-ahead]-robust directories
+    for line in card_rows(page)[2:]:
+        name, where = line.split(" | ")[0].strip("| "), line.split(" | ")[1]
+        assert where.endswith(", robust" if name.endswith("-robust") else ", nominal"), line
 
 
 def busy_loops() -> list[int]:

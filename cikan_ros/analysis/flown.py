@@ -94,14 +94,14 @@ def governors_text(names: list[str], cfg: Config) -> str:
     """Governors as a campaign names them, each learned family with the model it flies for the
     scenario and side (``scenario.models_dir``), e.g. ``conventional, cikan (models/leo/cikan-ahead)``."""
     from ..learn.arch import FAMILIES
-    from ..learn.modelfile import scenario_model_dir
+    from ..learn.modelfile import flown_model_dir
     from ..registry import split_rule
 
     def one(name: str) -> str:
         base, _ = split_rule(name)
         if base not in FAMILIES:
             return name
-        return f"{name} ({shown_path(scenario_model_dir(cfg.scenario.models_dir, base, cfg.mission.approach))})"
+        return f"{name} ({shown_path(flown_model_dir(cfg, base))})"
     return ", ".join(one(n) for n in names)
 
 

@@ -106,11 +106,10 @@ def _card(name: str, flat: dict[str, Any] | None = None) -> dict[str, Any] | Non
     """The model card of governor ``name`` as the campaign (configuration ``flat``) flew it: a
     family resolves to its scenario's model for the approach side."""
     from ..learn.arch import FAMILIES
-    from ..learn.modelfile import MODELS_DIR, scenario_model_dir
+    from ..learn.modelfile import MODELS_DIR, flown_model_dir
 
     if name in FAMILIES and flat is not None:
-        cfg = config_from_flat(flat)
-        path = scenario_model_dir(cfg.scenario.models_dir, name, cfg.mission.approach)
+        path = flown_model_dir(config_from_flat(flat), name)
     else:
         path = Path(name) if "/" in name else MODELS_DIR / name
     card = path / "card.json" if path.is_dir() else path.with_name("card.json")

@@ -24,7 +24,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "file's split (e.g. conventional plus on-policy labels)")
     p.add_argument("--out", default=None, metavar="DIR",
                    help="model directory, e.g. models/my_cikan (default: the scenario's, "
-                        "scenario.models_dir/<family>[-ahead]; the dataset must be of that scenario and side)")
+                        "scenario.models_dir/<family>[-ahead][-robust]; the dataset must be of that scenario, "
+                        "side and Verify)")
     add_config_args(p)
     p.add_argument("--study", metavar="URL", default=None,
                    help="take architecture and hyper-parameters from the best trial of the Optuna "
@@ -139,11 +140,13 @@ def run(args: argparse.Namespace) -> int:
                       threads=args.threads, max_train=args.max_train, **hp)
     data = load_data(args.data, args.features)
     if args.out is None:
-        from ..learn.modelfile import check_dataset_scenario, scenario_model_dir
+        from ..learn.modelfile import check_dataset_labels, check_dataset_scenario, scenario_model_dir
 
         cfg_run = config_from_args(args)
         check_dataset_scenario(data.meta, data.path, cfg_run.scenario.name, cfg_run.mission.approach)
-        args.out = str(scenario_model_dir(cfg_run.scenario.models_dir, args.model, cfg_run.mission.approach))
+        check_dataset_labels(data.meta, data.path, cfg_run.flat())
+        args.out = str(scenario_model_dir(cfg_run.scenario.models_dir, args.model, cfg_run.mission.approach,
+                                          cfg_run.tsg.robust))
     ckpt = args.checkpoint_dir or str(Path("runs/checkpoints") / Path(args.out).name)
     res = train(arch, data, cfg, args.out, checkpoint_dir=ckpt, resume=args.resume,
                 progress=on_terminal(args.quiet or args.json), name=Path(args.out).name, card_extra=extra)

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from .errors import ModelFileError
-from .modelfile import MODELS_DIR, LoadedModel, card_scenario, load_model, model_scenario
+from .modelfile import MODELS_DIR, LoadedModel, card_scenario, label_config, load_model, model_scenario
 
 #: The paper's validation losses (Table 2, ×1e-3 there).
 PAPER_VAL = {"cikan": 1.2615e-3, "grbf": 1.1540e-3, "rswaf": 1.2610e-3, "relu": 1.6458e-3,
@@ -52,7 +52,7 @@ def _name(path: Path) -> str:
 
 def card_table(models: list[LoadedModel | tuple[str, str]]) -> str:
     """Markdown: one row per model directory, from its card."""
-    rows = ["| model | scenario, side | inputs | (n, l, G) | params | n²l(G+3) | θ_c | L_train | L_val | L_test "
+    rows = ["| model | scenario, side, Verify | inputs | (n, l, G) | params | n²l(G+3) | θ_c | L_train | L_val | L_test "
             "| L_val (θ_c=1) | L_val paper | RMSE τ test (s) | train labels | epochs | CPU wall (s) "
             "| TPE trials (complete/pruned) |",
             "|" + "---|" * 17]
@@ -66,13 +66,18 @@ def card_table(models: list[LoadedModel | tuple[str, str]]) -> str:
         labels = c.get("dataset", {}).get("split_labels", {}).get("train", "-")
         sc = model_scenario(c)
         rows.append(
-            f"| {_name(m.path)} | {sc['name']}, {sc['approach']} | {a.features} | {size} | {a.n_params():,} | {a.complexity():,} "
+            f"| {_name(m.path)} | {sc['name']}, {sc['approach']}, {_verify(c.get('config') or {})} | {a.features} | {size} | {a.n_params():,} | {a.complexity():,} "
             f"| {L['theta_c']:.2f} | {L['train']['loss']:.3e} | {L['val']['loss']:.3e} "
             f"| {L['test']['loss']:.3e} | {L['val']['loss_theta1']:.3e} | {PAPER_VAL[a.family]:.3e} "
             f"| {L['test']['rmse_tau_s']:.3f} | {labels:,} | {tr['epochs_run']}/{tr['epochs']} "
             f"| {tr['cpu_budget']['wall_s']:.0f} | {tun.get('trials', 0)} "
             f"({tun.get('complete', 0)}/{tun.get('pruned', 0)}) |")
     return "\n".join(rows) + "\n"
+
+
+def _verify(flat: dict[str, Any]) -> str:
+    """The Verify whose labels a configuration (a card's, a dataset's) made: "nominal" or "robust"."""
+    return "robust" if label_config(flat)["tsg.robust"] else "nominal"
 
 
 def loss_breakdown(models: list[LoadedModel | tuple[str, str]], data_path: str | Path,
@@ -94,12 +99,15 @@ def loss_breakdown(models: list[LoadedModel | tuple[str, str]], data_path: str |
     groups += [(f"\\|τ*\\| in [{lo:g}, {hi:g}) s", (mag >= lo) & (mag < hi)) for lo, hi in BANDS]
     hold = np.abs(tau - prev) <= HOLD_S
     groups += [("hold (\\|π* - τ_{k-1}\\| <= 1e-4 s)", hold), ("move", ~hold)]
-    # The models of the dataset's scenario and side only (the others learned other states).
-    ok = [m for m in models if not isinstance(m, tuple) and model_scenario(m.card) == card_scenario(meta)]
+    # The models of the dataset's scenario, side and Verify only (the others learned other labels).
+    made = label_config(meta.get("config") or {})
+    ok = [m for m in models if not isinstance(m, tuple) and model_scenario(m.card) == card_scenario(meta)
+          and label_config(m.card.get("config") or {}) == made]
     head = "| labels | share of split | " + " | ".join(_name(m.path) for m in ok) + " |"
     sc = card_scenario(meta)
     lines = [f"Split `{split}` of `{Path(data_path).name}` (scenario {sc['name']}, approach "
-             f"{sc['approach']}; {len(y):,} labels); loss = the paper's definition at θ_c = 1.", "",
+             f"{sc['approach']}, {_verify(meta.get('config') or {})} Verify; {len(y):,} labels); loss = the "
+             "paper's definition at θ_c = 1.", "",
              head, "|" + "---|" * (2 + len(ok))]
     preds = {}
     x_d = part[list(XD_COLS)].to_numpy()

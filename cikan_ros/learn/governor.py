@@ -58,7 +58,7 @@ import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..config import Config, Side, scenario_names
+from ..config import Config, Side, scenario_names, truth_names
 from ..governor import (PATH_AUDIT, PATH_BISECT, PATH_INITIAL, PATH_KEEP, PATH_NN, PATH_NN_BISECT, PATH_PROBE,
                         PATH_SEARCH, PATH_STALL, PATH_VERIFY_ZERO, PATH_ZERO, UpdateRecord, initial_update,
                         make_record, start_clock, update_index)
@@ -67,7 +67,7 @@ from ..units import ns_to_seconds, seconds_to_ns as to_ns
 from .arch import FAMILIES, NumpyNet, log_shift_kernel
 from .errors import ModelFileError
 from .features import FEATURE_CODES
-from .modelfile import CARD, LoadedModel, label_mismatch, load_model, model_scenario, scenario_model_dir
+from .modelfile import CARD, LoadedModel, flown_model_dir, label_mismatch, load_model, model_scenario
 
 #: ln|τ| above this (|τ| > ~1.4e17 s) is treated like a non-finite output: out of range.
 MAX_LOG_SHIFT = 40.0
@@ -440,15 +440,23 @@ def nn_accept_rate(updates: Iterable[UpdateRecord]) -> float | None:
 def train_target_args(cfg: Config) -> str:
     """The arguments of ``make scenario-models`` that train the models this configuration flies:
     ``SCENARIO=`` the shipped scenario's name, or, for a scenario given as a file (whose path the
-    configuration does not keep), the file's place; ``APPROACH=ahead`` from ahead."""
+    configuration does not keep), the file's place; ``APPROACH=ahead`` from ahead;
+    ``VERIFY=robust`` (and ``TRUTH=`` another truth than ``realistic``) under robust Verify."""
     name = cfg.scenario.name
     scenario = f"SCENARIO={name}" if name in scenario_names() else f"SCENARIO=<your {name} scenario file>"
-    return scenario + ("" if cfg.side is Side.BEHIND else f" APPROACH={cfg.side.approach}")
+    side = "" if cfg.side is Side.BEHIND else f" APPROACH={cfg.side.approach}"
+    if not cfg.tsg.robust:
+        return scenario + side
+    t = cfg.truth.name
+    truth = "" if t == "realistic" else f" TRUTH={t}" if t in truth_names() else f" TRUTH=<your {t} truth file>"
+    return scenario + side + " VERIFY=robust" + truth
 
 
 def load_learned_governor(name: str, predictor: Predictor) -> LearnedGovernor:
     """The learned governor of a shipped family (``cikan``, ``grbf``, ``rswaf``, ``relu``,
-    ``gelu``: the scenario's model for the approach side, ``scenario.models_dir``/<name>[-ahead])
+    ``gelu``: the scenario's model for the approach side and Verify mode,
+    ``scenario.models_dir``/<name>[-ahead][-robust]; under robust Verify with
+    ``learned.foreign_model`` and no robust model, the nominal one)
     or of a model directory/file. A model whose card names another scenario or side, or labels of
     another Verify (:func:`~cikan_ros.learn.modelfile.label_mismatch`: nominal labels flown under
     robust Verify, another truth scale or controller) is refused unless ``learned.foreign_model``
@@ -456,10 +464,11 @@ def load_learned_governor(name: str, predictor: Predictor) -> LearnedGovernor:
     cfg = predictor.config
     family = name in FAMILIES
     if family:
-        where = scenario_model_dir(cfg.scenario.models_dir, name, cfg.mission.approach)
+        where = flown_model_dir(cfg, name)
         if not (where / CARD).is_file():
             raise ModelFileError(
-                f"no {name} model for scenario {cfg.scenario.name!r}, approach {cfg.mission.approach!r} "
+                f"no {name} model{' of robust Verify' if cfg.tsg.robust else ''} for scenario "
+                f"{cfg.scenario.name!r}, approach {cfg.mission.approach!r} "
                 f"(looked in {where}); train one (make scenario-models {train_target_args(cfg)}) "
                 f"or name a model directory")
         model = load_model(where)

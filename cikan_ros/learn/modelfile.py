@@ -15,7 +15,7 @@ import math
 import platform
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
 import numpy as np
 from numpy.typing import NDArray
@@ -23,6 +23,9 @@ from numpy.typing import NDArray
 from ..paths import shipped
 from .arch import FAMILIES, NORM_TENSORS, Arch, norm_tensor_shapes
 from .errors import ModelFileError
+
+if TYPE_CHECKING:
+    from ..config import Config
 
 FORMAT = "cikan-model/1"
 WEIGHTS = "model.safetensors"
@@ -124,6 +127,18 @@ def check_dataset_scenario(meta: Mapping[str, Any], path: str, scenario: str, ap
                            "the dataset's --scenario and --set mission.approach")
 
 
+def check_dataset_labels(meta: Mapping[str, Any], path: str, flat: Mapping[str, Any]) -> None:
+    """DatasetError unless the dataset (metadata ``meta``) holds labels of the Verify a flight of
+    configuration ``flat`` runs (:func:`label_config`): a model is trained for the Verify it flies."""
+    made, wanted = label_config(meta.get("config") or {}), label_config(flat)
+    if made != wanted:
+        from .errors import DatasetError
+
+        raise DatasetError(f"dataset {path} holds labels of {describe_labels(made)}, not of "
+                           f"{describe_labels(wanted)}: give the dataset's --truth, --robust and --set "
+                           "options")
+
+
 #: Beyond the scenario and side, what decides a label tau* under robust Verify (flat configuration
 #: keys): the zeta interval and the truth's declared bounds, which size the tube and choose the
 #: prediction's gravity. The truth a dataset's missions flew under nominal Verify moves its
@@ -182,14 +197,27 @@ def model_scenario(card: Mapping[str, Any]) -> dict[str, str]:
     return card_scenario({**(card.get("dataset") or {}), "config": card.get("config") or {}})
 
 
-def scenario_model_dir(models_dir: str, family: str, approach: str) -> Path:
-    """Where a scenario keeps family ``family``'s model for ``approach``:
-    ``<models_dir>/<family>`` behind, ``<models_dir>/<family>-ahead`` ahead; ``models_dir``
-    relative to the project root (or an install's share/cikan_ros) unless absolute."""
+def scenario_model_dir(models_dir: str, family: str, approach: str, robust: bool = False) -> Path:
+    """Where a scenario keeps family ``family``'s model for ``approach`` and the Verify it learned:
+    ``<models_dir>/<family>`` behind, ``<models_dir>/<family>-ahead`` ahead, with ``-robust``
+    appended for labels of robust Verify (``tsg.robust``); ``models_dir`` relative to the project
+    root (or an install's share/cikan_ros) unless absolute."""
     root = Path(models_dir)
     if not root.is_absolute():
         root = MODELS_DIR.parent / root
-    return root / (family if approach == "behind" else f"{family}-ahead")
+    return root / (family + ("" if approach == "behind" else "-ahead") + ("-robust" if robust else ""))
+
+
+def flown_model_dir(cfg: Config, family: str) -> Path:
+    """The directory of the model family ``family`` flies in configuration ``cfg``: the scenario's,
+    for its approach side and Verify mode (:func:`scenario_model_dir`); under robust Verify with
+    ``learned.foreign_model`` and no model of robust labels, the nominal one (flown as foreign)."""
+    models_dir, approach = cfg.scenario.models_dir, cfg.mission.approach
+    where = scenario_model_dir(models_dir, family, approach, cfg.tsg.robust)
+    nominal = scenario_model_dir(models_dir, family, approach)
+    if not (where / CARD).is_file() and cfg.learned.foreign_model and (nominal / CARD).is_file():
+        return nominal
+    return where
 
 
 def resolve(name_or_path: str | Path) -> Path:
