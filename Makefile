@@ -208,24 +208,28 @@ robust-models: $(STAMP)
 	  $(MAKE) scenario-models VERIFY=robust SCENARIO=$${sa%-*} APPROACH=$${sa#*-} || exit 1; \
 	done
 
-# Results per scenario and approach side (docs/results/scenarios/): the conventional TSG and every
-# model shipped for that scenario and side (keep rule), SCENARIO_RESULT_RUNS Monte Carlo runs each,
-# then the table. `make scenario-results` does every scenario and side; one with
-# `make scenario-result SCENARIO=leo APPROACH=ahead`.
+# Results per scenario, approach side and Verify mode (docs/results/scenarios/): the conventional
+# TSG and every model shipped for that scenario, side and Verify (keep rule), SCENARIO_RESULT_RUNS
+# Monte Carlo runs each, then the table; VERIFY=robust flies robust Verify in the realistic truth
+# (<scenario>-<side>-robust). `make scenario-results` does every scenario, side and Verify; one
+# with `make scenario-result SCENARIO=leo APPROACH=ahead [VERIFY=robust]`.
 SCENARIO_RESULT_RUNS ?= 100
 SCENARIOS  := paper leo geo
 APPROACHES := behind ahead
+VERIFIES   := nominal robust
+SCENARIO_RESULT = $(SCENARIO)-$(APPROACH)$(ROBUST_SUFFIX)
+RESULT_WORLD    = $(if $(filter robust,$(VERIFY)),robust Verify in the $(TRUTH) truth,the nominal world)
 scenario-result: $(STAMP)
 	$(BIN)/cikan montecarlo $(SCENARIO_ARGS) --runs $(SCENARIO_RESULT_RUNS) --governor shipped --workers 2 \
-		--out runs/scenario-results/$(SCENARIO)-$(APPROACH)
-	$(BIN)/cikan report runs/scenario-results/$(SCENARIO)-$(APPROACH) --tables-only \
-		--out docs/results/scenarios/$(SCENARIO)-$(APPROACH) \
-		--title "Scenario $(SCENARIO), approach from $(APPROACH): the conventional TSG and the shipped models, $(SCENARIO_RESULT_RUNS) Monte Carlo runs"
+		--out runs/scenario-results/$(SCENARIO_RESULT)
+	$(BIN)/cikan report runs/scenario-results/$(SCENARIO_RESULT) --tables-only \
+		--out docs/results/scenarios/$(SCENARIO_RESULT) \
+		--title "Scenario $(SCENARIO), approach from $(APPROACH), $(RESULT_WORLD): the conventional TSG and the shipped models, $(SCENARIO_RESULT_RUNS) Monte Carlo runs"
 
 scenario-results: $(STAMP)
-	for s in $(SCENARIOS); do for a in $(APPROACHES); do \
-	  $(MAKE) scenario-result SCENARIO=$$s APPROACH=$$a || exit 1; \
-	done; done
+	for s in $(SCENARIOS); do for a in $(APPROACHES); do for v in $(VERIFIES); do \
+	  $(MAKE) scenario-result SCENARIO=$$s APPROACH=$$a VERIFY=$$v || exit 1; \
+	done; done; done
 	$(MAKE) scenario-index
 
 # The index of every scenario campaign flown so far (docs/results/scenarios/README.md).
@@ -251,7 +255,8 @@ bad-networks: $(STAMP)
 		--title "Networks that do not fit, under the keep rule: Table 2 starts, $(ROBUST_RUNS) runs"
 
 # cikan bench per scenario, side and Verify mode (the JSON of each in docs/results/scenarios/bench/:
-# <scenario>-<side>.json nominal, <scenario>-<side>-robust.json robust Verify in the realistic truth):
+# <scenario>-<side>.json nominal, <scenario>-<side>-robust.json robust Verify in the realistic truth, flying the
+# models of its labels, F[-ahead]-robust):
 # BENCH_MISSIONS missions' update states each (GEO's 24-h missions have ~1,000 active updates).
 BENCH_MISSIONS ?= 5
 scenario-bench: $(STAMP)
@@ -259,6 +264,6 @@ scenario-bench: $(STAMP)
 	for s in $(SCENARIOS); do for a in $(APPROACHES); do \
 	  $(BIN)/cikan bench --scenario $$s --set mission.approach=$$a --missions $(BENCH_MISSIONS) --json \
 	    > docs/results/scenarios/bench/$$s-$$a.json || exit 1; \
-	  $(BIN)/cikan bench --scenario $$s --set mission.approach=$$a --truth realistic --robust $(FOREIGN_MODELS) \
+	  $(BIN)/cikan bench --scenario $$s --set mission.approach=$$a --truth realistic --robust \
 	    --missions $(BENCH_MISSIONS) --json > docs/results/scenarios/bench/$$s-$$a-robust.json || exit 1; \
 	done; done

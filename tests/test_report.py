@@ -224,7 +224,7 @@ def test_nn_accept_is_the_share_of_active_updates_the_network_decided(campaign, 
     assert row["nn_accept_rate"] == pytest.approx(accepted / active, rel=1e-12)
     shutil.copytree(campaign, tmp_path / "paper-behind")   # the index reads a directory of campaigns
     index = scenarios_index(tmp_path)
-    assert f"| paper | behind | cikan | 3 |" in index and f"| {accepted / active:.3f} |" in index
+    assert f"| paper | behind | nominal | cikan | 3 |" in index and f"| {accepted / active:.3f} |" in index
 
 
 def test_report_from_a_montecarlo_directory(campaign, tmp_path, drawn):

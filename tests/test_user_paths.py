@@ -132,19 +132,19 @@ def test_report_scenarios_index(campaign: Path, tmp_path: Path) -> None:
     conventional TSG (mean, and the worst start) as the per-run files give them."""
     assert main(["report", str(campaign.parent), "--scenarios", "--out", str(tmp_path)]) == 0
     page = (tmp_path / "README.md").read_text()
-    rows = {line.split(" | ")[2]: line for line in page.splitlines() if line.startswith("| paper | behind | ")}
+    rows = {line.split(" | ")[3]: line for line in page.splitlines() if line.startswith("| paper | behind | nominal | ")}
     assert sorted(rows) == sorted(GOVERNORS)
     conv, mine = runs_of(campaign, "conventional"), runs_of(campaign, "cikan")
     for g, runs in (("conventional", conv), ("cikan", mine)):
         cells = rows[g].split(" | ")
-        assert cells[3:8] == [str(len(SEEDS)), str(sum(m["success"] for m in runs)),
+        assert cells[4:9] == [str(len(SEEDS)), str(sum(m["success"] for m in runs)),
                               str(sum(m["violations"] for m in runs)),
                               str(sum(m["violations_between"] for m in runs)),
                               f"{np.mean([m['delta_v_kmps'] for m in runs]):.4f}"], rows[g]
     mean_ratio = np.mean([m["delta_v_kmps"] for m in mine]) / np.mean([m["delta_v_kmps"] for m in conv])
     worst = max(a["delta_v_kmps"] / b["delta_v_kmps"] for a, b in zip(mine, conv))
-    assert rows["cikan"].split(" | ")[8] == f"{mean_ratio - 1:+.1%} ({worst - 1:+.0%})"
-    assert rows["conventional"].split(" | ")[8] == "-"
+    assert rows["cikan"].split(" | ")[9] == f"{mean_ratio - 1:+.1%} ({worst - 1:+.0%})"
+    assert rows["conventional"].split(" | ")[9] == "-"
 
 
 def test_train_like_a_shipped_model(cfg, predictor, tmp_path: Path, capsys) -> None:

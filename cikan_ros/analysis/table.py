@@ -118,10 +118,18 @@ def _card(name: str, flat: dict[str, Any] | None = None) -> dict[str, Any] | Non
 
 def campaign_scenario(mc_dir: str | Path) -> tuple[str, str]:
     """(scenario name, approach side) a Monte Carlo campaign flew (its first stored run)."""
+    name, approach, _ = campaign_world(mc_dir)
+    return name, approach
+
+
+def campaign_world(mc_dir: str | Path) -> tuple[str, str, str]:
+    """(scenario name, approach side, Verify) a Monte Carlo campaign flew (its first stored run):
+    Verify is "nominal", or "robust (<truth>)" as the bench index names it."""
     for js in sorted(Path(mc_dir).glob("*/seed_*.json")):
         cfg = config_from_flat(json.loads(js.read_text())["config"])
-        return cfg.scenario.name, cfg.mission.approach
-    return "paper", "behind"
+        verify = f"robust ({cfg.truth.name})" if cfg.tsg.robust else "nominal"
+        return cfg.scenario.name, cfg.mission.approach, verify
+    return "paper", "behind", "nominal"
 
 
 def build_table(mc_dir: str | Path, with_rmse: bool = True) -> list[dict[str, Any]]:
@@ -294,14 +302,15 @@ def per_start_worst(mc_dir: str | Path, governor: str) -> tuple[float, float]:
 
 def scenarios_index(root: str | Path) -> str:
     """Markdown: one block of rows per campaign directory under ``root`` (``make
-    scenario-results``: runs/scenario-results/<scenario>-<side>), each governor's docking,
+    scenario-results``: runs/scenario-results/<scenario>-<side>[-robust], the Verify mode read from
+    the runs), each governor's docking,
     violations, ΔV and time to τ = 0 against the conventional TSG of the same campaign (mean
     ratio, and the worst start), and its active-update speed-up (CPU time, as flown)."""
-    lines = ["| scenario | side | governor | runs | docked | violations | between samples | ΔV mean (km/s) "
-             "| ΔV vs conv. (worst start) | t(τ=0) vs conv. (worst start) | active speed-up mean / worst "
-             "| NN accept |", "|" + "---|" * 12]
+    lines = ["| scenario | side | Verify | governor | runs | docked | violations | between samples "
+             "| ΔV mean (km/s) | ΔV vs conv. (worst start) | t(τ=0) vs conv. (worst start) "
+             "| active speed-up mean / worst | NN accept |", "|" + "---|" * 13]
     for d in sorted(p for p in Path(root).iterdir() if p.is_dir()):
-        scenario, approach = campaign_scenario(d)
+        scenario, approach, verify = campaign_world(d)
         for r in build_table(d, with_rmse=False):
             g = r["model"]
             if g == "conventional":
@@ -312,7 +321,7 @@ def scenarios_index(root: str | Path) -> str:
                 vs = f"{r['delta_v_vs_conventional']:+.1%} ({wdv - 1:+.0%})"
                 tvs = f"{r['t_tau_zero_vs_conventional']:+.1%} ({wt - 1:+.0%})"
             lines.append(
-                f"| {scenario} | {approach} | {g} | {r['runs']} | {r['successes']} | {r['violations']} "
+                f"| {scenario} | {approach} | {verify} | {g} | {r['runs']} | {r['successes']} | {r['violations']} "
                 f"| {_fmt(r['violations_between'], 'd')} | {_fmt(r['delta_v_kmps_mean'], '.4f')} | {vs} | {tvs} "
                 f"| {_fmt(r['active_speedup_mean'], '.2f')} / {_fmt(r['active_speedup_worst'], '.2f')} "
                 f"| {_fmt(r['nn_accept_rate'], '.3f')} |")
