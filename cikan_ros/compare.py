@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from typing import Any, Iterable
 
 from .config import Config
-from .errors import CikanError
+from .errors import CikanError, NoFeasibleShiftError
 from .mission import run_mission, sample_start
 from .montecarlo import process_governor
 from .paired import paired_ratio
@@ -33,9 +33,13 @@ class Flight:
 
 
 def fly(task: Flight) -> dict[str, Any]:
-    """Fly one mission (governors cached and warmed up per process); its paired figures."""
+    """Fly one mission (governors cached and warmed up per process); its paired figures, or
+    ``{"refused": why}`` when Verify finds no feasible shift at its start (robust Verify)."""
     gov = process_governor(task.config_json, task.governor)
-    res = run_mission(gov, sample_start(gov.predictor, task.seed), task.seed)
+    try:
+        res = run_mission(gov, sample_start(gov.predictor, task.seed), task.seed)
+    except NoFeasibleShiftError as exc:
+        return {"refused": str(exc)}
     m = res.metrics()
     active = [r for r in res.updates if r.active]
     return {"delta_v_kmps": m["delta_v_kmps"], "t_tau_zero_s": m["t_tau_zero_s"],
@@ -68,8 +72,13 @@ def compare(variants: dict[str, Config], governors: list[str], seeds: list[int],
         conv = [runs[Flight(conv_json[_conventional_key(c)], "conventional", s)] for s in seeds]
         for g in governors:
             mine = [runs[Flight(cfg_json[label], g, s)] for s in seeds]
-            rows.append({"variant": label, "governor": g, "runs": len(seeds),
-                         **relative_figures(mine, conv)})
+            # Starts Verify refused (robust Verify; the initial search is the same for every
+            # governor) are counted, not flown: the figures pair the starts both flew.
+            both = [(a, b) for a, b in zip(mine, conv) if "refused" not in a and "refused" not in b]
+            rows.append({"variant": label, "governor": g, "runs": len(both), "refused": len(seeds) - len(both),
+                         **relative_figures([a for a, _ in both], [b for _, b in both])})
+    if all(r["runs"] == 0 for r in rows):
+        raise NoFeasibleShiftError(f"Verify refused all {len(seeds)} starts: nothing to compare")
     return rows
 
 
@@ -82,6 +91,9 @@ def relative_figures(mine: list[dict[str, Any]], conv: list[dict[str, Any]]) -> 
     both_zero = [(a, b) for a, b in zip(mine, conv)
                  if a["t_tau_zero_s"] is not None and b["t_tau_zero_s"] is not None]
     n_mine, n_conv = _total(mine, "active_updates"), _total(conv, "active_updates")
+    if not mine:
+        return {"success": 0, "violations": 0, "delta_v_ratio": None, "delta_v_ratio_se": None,
+                "t_tau_zero_ratio": None, "verify_calls_mean": None, "active_speedup": None}
     dv = paired_ratio([a["delta_v_kmps"] for a in mine], [b["delta_v_kmps"] for b in conv])
     return {
         "success": sum(r["success"] for r in mine),
@@ -101,7 +113,7 @@ def markdown(rows: list[dict[str, Any]]) -> str:
     def pct(r: float | None) -> str:
         return "-" if r is None else f"{100 * (r - 1):+.1f} %"
 
-    def pct_se(r: float, e: float | None) -> str:
+    def pct_se(r: float | None, e: float | None) -> str:
         return pct(r) if e is None else f"{100 * (r - 1):+.1f} ± {100 * e:.1f} %"
 
     out = ["| variant | governor | runs | ΔV vs conventional (± SE) | t(τ=0) vs conventional | success | "
@@ -110,7 +122,8 @@ def markdown(rows: list[dict[str, Any]]) -> str:
     for r in rows:
         calls = "-" if r["verify_calls_mean"] is None else f"{r['verify_calls_mean']:.2f}"
         speed = "-" if r["active_speedup"] is None else f"{r['active_speedup']:.2f}"
-        out.append(f"| {r['variant']} | {r['governor']} | {r['runs']} | "
+        runs = f"{r['runs']} ({r['refused']} refused)" if r.get("refused") else f"{r['runs']}"
+        out.append(f"| {r['variant']} | {r['governor']} | {runs} | "
                    f"{pct_se(r['delta_v_ratio'], r['delta_v_ratio_se'])} | "
                    f"{pct(r['t_tau_zero_ratio'])} | {r['success']}/{r['runs']} | {r['violations']} | "
                    f"{calls} | {speed} |")
