@@ -102,6 +102,23 @@ def test_starts_verify_refuses_are_counted_not_flown() -> None:
         compare({"default": cfg}, ["cikan"], [3])
 
 
+def test_variants_keep_the_commands_scenario_truth_and_verify() -> None:
+    """A --variant is the command's configuration (here LEO from ahead, robust Verify in the
+    realistic truth) with its own overrides added: only the variant's keys differ."""
+    from cikan_ros.cli import build_parser
+    from cikan_ros.commands.compare import variant_configs
+
+    args = build_parser().parse_args(["compare", "--scenario", "leo", "--set", "mission.approach=ahead",
+                                      "--truth", "realistic", "--robust",
+                                      "--variant", "learned.robust_ladder=[0.1, 0.0];learned.audit_step=0.2"])
+    variants = variant_configs(args)
+    base, var = variants["default"].flat(), variants["learned.robust_ladder=[0.1, 0.0];learned.audit_step=0.2"].flat()
+    assert (base["scenario.name"], base["mission.approach"], base["truth.name"], base["tsg.robust"]) == \
+        ("leo", "ahead", "realistic", True)
+    assert {k for k in base if base[k] != var[k]} == {"learned.robust_ladder", "learned.audit_step"}
+    assert var["learned.robust_ladder"] == [0.1, 0.0] and var["learned.audit_step"] == 0.2
+
+
 @pytest.mark.parametrize("args, problem", [
     (["--seeds", "9-3"], "--seeds range is empty"),
     (["--seeds", "x"], "--seeds expects A-B"),

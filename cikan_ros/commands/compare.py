@@ -3,9 +3,13 @@
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
 
 from ..strict_json import dumps
 from . import add_config_args, config_from_args
+
+if TYPE_CHECKING:
+    from ..config import Config
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -42,16 +46,22 @@ def parse_seeds(text: str) -> list[int]:
     return list(range(lo, hi + 1))
 
 
+def variant_configs(args: argparse.Namespace) -> dict[str, Config]:
+    """``{"default": the command's configuration, text: it with the variant's overrides}``: each
+    variant keeps every configuration option of the command (--config, --scenario, --truth,
+    --robust, --set) and adds its own --set overrides after them."""
+    variants = {"default": config_from_args(args)}
+    for text in args.variant:
+        extra = [s.strip() for s in text.split(";") if s.strip()]
+        variants[text] = config_from_args(argparse.Namespace(**{**vars(args), "overrides": args.overrides + extra}))
+    return variants
+
+
 def run(args: argparse.Namespace) -> int:
     from ..compare import compare, markdown
     from ..registry import LEARNED_NAMES
 
-    base = config_from_args(args)
-    variants = {"default": base}
-    for text in args.variant:
-        ns = argparse.Namespace(config=args.config,
-                                overrides=args.overrides + [s.strip() for s in text.split(";") if s.strip()])
-        variants[text] = config_from_args(ns)
+    variants = variant_configs(args)
     rows = compare(variants, args.governor or list(LEARNED_NAMES), parse_seeds(args.seeds),
                    args.workers, args.dask)
     if args.json:
