@@ -438,12 +438,10 @@ LEARNED_ALGORITHMS = ("keep", "paper")
 
 @dataclass(frozen=True)
 class LearnedConfig:
-    """Update rule of the learned governors (SPEC §8): which rule, and the keep rule's settings
-    (``robust_ladder`` in place of ``ladder`` under robust Verify, ``tsg.robust``)."""
+    """Update rule of the learned governors (SPEC §8): which rule, and the keep rule's settings."""
 
     algorithm: str = "keep"
     ladder: tuple[float, ...] = (0.08, 0.03, 0.0, -0.05)
-    robust_ladder: tuple[float, ...] = (0.05, 0.0, -0.05)
     min_step_s: float = 1e-3
     min_progress: float = 0.0
     fallback_budget: int = 1
@@ -460,12 +458,10 @@ class LearnedConfig:
     def __post_init__(self) -> None:
         _check(self.algorithm in LEARNED_ALGORITHMS, "learned.algorithm", self.algorithm,
                f"must be one of {LEARNED_ALGORITHMS}")
-        for name in ("ladder", "robust_ladder"):
-            rungs = tuple(float(s) for s in getattr(self, name))
-            object.__setattr__(self, name, rungs)
-            _check(1 <= len(rungs) <= 8 and all(-1.0 <= s < 1.0 for s in rungs)
-                   and all(a > b for a, b in zip(rungs, rungs[1:])), f"learned.{name}",
-                   list(rungs), "must be 1 to 8 numbers in [-1, 1), strictly decreasing")
+        object.__setattr__(self, "ladder", tuple(float(s) for s in self.ladder))
+        _check(1 <= len(self.ladder) <= 8 and all(-1.0 <= s < 1.0 for s in self.ladder)
+               and all(a > b for a, b in zip(self.ladder, self.ladder[1:])), "learned.ladder",
+               list(self.ladder), "must be 1 to 8 numbers in [-1, 1), strictly decreasing")
         _check(math.isfinite(self.min_step_s) and self.min_step_s >= 0, "learned.min_step_s",
                self.min_step_s, "must be >= 0")
         _check(math.isfinite(self.min_progress) and 0.0 <= self.min_progress < 1.0,
@@ -490,10 +486,6 @@ class LearnedConfig:
         _check(self.stall_judge in ("progress", "audit"), "learned.stall_judge", self.stall_judge,
                "must be 'progress' (any progress a stall search finds is a miss) or 'audit' "
                "(only progress beyond audit_step)")
-
-    def rungs(self, robust: bool) -> tuple[float, ...]:
-        """The keep rule's ladder for nominal or robust Verify."""
-        return self.robust_ladder if robust else self.ladder
 
 
 @dataclass(frozen=True)

@@ -110,13 +110,13 @@ def test_variants_keep_the_commands_scenario_truth_and_verify() -> None:
 
     args = build_parser().parse_args(["compare", "--scenario", "leo", "--set", "mission.approach=ahead",
                                       "--truth", "realistic", "--robust",
-                                      "--variant", "learned.robust_ladder=[0.1, 0.0];learned.audit_step=0.2"])
+                                      "--variant", "learned.ladder=[0.1, 0.0];learned.audit_step=0.2"])
     variants = variant_configs(args)
-    base, var = variants["default"].flat(), variants["learned.robust_ladder=[0.1, 0.0];learned.audit_step=0.2"].flat()
+    base, var = variants["default"].flat(), variants["learned.ladder=[0.1, 0.0];learned.audit_step=0.2"].flat()
     assert (base["scenario.name"], base["mission.approach"], base["truth.name"], base["tsg.robust"]) == \
         ("leo", "ahead", "realistic", True)
-    assert {k for k in base if base[k] != var[k]} == {"learned.robust_ladder", "learned.audit_step"}
-    assert var["learned.robust_ladder"] == [0.1, 0.0] and var["learned.audit_step"] == 0.2
+    assert {k for k in base if base[k] != var[k]} == {"learned.ladder", "learned.audit_step"}
+    assert var["learned.ladder"] == [0.1, 0.0] and var["learned.audit_step"] == 0.2
 
 
 @pytest.mark.parametrize("args, problem", [

@@ -40,7 +40,6 @@ def test_flat_round_trip():
     ("learned.ladder", [0.0, 0.03], "strictly decreasing"),
     ("learned.ladder", [1.0, 0.0], "learned.ladder"),
     ("learned.ladder", [], "learned.ladder"),
-    ("learned.robust_ladder", [0.0, 0.0], "learned.robust_ladder"),
     ("learned.probe_every", 0, "learned.probe_every"),
 ])
 def test_invalid_values_are_named(name, value, match):

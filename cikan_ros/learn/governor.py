@@ -6,7 +6,7 @@ and share the zero rule (τ_prev = 0 -> 0 with no prediction, path "zero") and t
 proposal -exp(NN) on the nanosecond grid (NaN when the output is not finite or out of range).
 
 ``keep`` (default; k = round(t_k / P_upd), δ = learned.min_step_s, s_1 > ... > s_L =
-learned.ladder (learned.robust_ladder under robust Verify), S = learned.probe_every, B = learned.fallback_budget, B_p = learned.probe_budget;
+learned.ladder, S = learned.probe_every, B = learned.fallback_budget, B_p = learned.probe_budget;
 the update is *scheduled* when k % S == 0; bisect_b = bisection that stops after b Verify calls
 and returns its verified lower end, b = 0 meaning τ_prev). The candidates are the proposal made
 more optimistic by each rung, c_i = τ_c (1 - s_i) on the nanosecond grid, and C = those with
@@ -206,8 +206,8 @@ class LearnedGovernor:
         self.model_dir: Path | None = None
         self.weights_sha256: str | None = None
         self._code = FEATURE_CODES[net.arch.features]
-        self._rungs = np.array(lc.rungs(predictor.config.tsg.robust), dtype=np.float64)
-        self._cands_ns = np.empty(len(self._rungs), dtype=np.int64)
+        self._rungs = np.array(lc.ladder, dtype=np.float64)
+        self._cands_ns = np.empty(len(lc.ladder), dtype=np.int64)
 
     @classmethod
     def from_model(cls, model: LoadedModel, predictor: Predictor, name: str | None = None
@@ -416,7 +416,7 @@ class LearnedGovernor:
         or proposes less progress than ρ |τ_prev| (|τ_c| > |τ_prev| (1 - ρ), ρ =
         learned.min_progress). In magnitudes m = side · τ, so one rule serves both sides."""
         lc = self.predictor.config.learned
-        out = np.empty(len(self._rungs), dtype=np.int64)
+        out = np.empty(len(lc.ladder), dtype=np.int64)
         n = ladder_kernel(float(tau_c), float(tau_prev), int(self.predictor.side), self._rungs, lc.min_step_s,
                           lc.min_progress, out)
         return [ns_to_seconds(int(v)) for v in out[:n]]
