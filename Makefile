@@ -200,9 +200,9 @@ scenario-models: $(SCENARIO_RUNS)/labels.parquet
 	    --checkpoint-dir $(SCENARIO_RUNS)/checkpoints/$$f $(SCENARIO_TRAIN) || exit 1; \
 	done
 
-# The models of robust Verify (realistic truth) for every scenario and side where it accepts
-# starts: labels and SCENARIO_FAMILIES' models, as `make scenario-models VERIFY=robust` does for one.
-ROBUST_MODEL_SIDES ?= paper-behind paper-ahead leo-ahead geo-behind geo-ahead
+# The models of robust Verify (realistic truth) for every scenario and side: labels and
+# SCENARIO_FAMILIES' models, as `make scenario-models VERIFY=robust` does for one.
+ROBUST_MODEL_SIDES ?= paper-behind paper-ahead leo-behind leo-ahead geo-behind geo-ahead
 robust-models: $(STAMP)
 	for sa in $(ROBUST_MODEL_SIDES); do \
 	  $(MAKE) scenario-models VERIFY=robust SCENARIO=$${sa%-*} APPROACH=$${sa#*-} || exit 1; \
