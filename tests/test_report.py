@@ -227,6 +227,21 @@ def test_nn_accept_is_the_share_of_active_updates_the_network_decided(campaign, 
     assert f"| paper | behind | nominal | cikan | 3 |" in index and f"| {accepted / active:.3f} |" in index
 
 
+def test_starts_verify_refused_are_said_not_drawn(campaign, tmp_path):
+    """A campaign where robust Verify refused a start (its JSON says why, no trajectory): the
+    report flies on with the runs that flew and says how many starts each governor had refused."""
+    mc = tmp_path / "mc"
+    shutil.copytree(campaign, mc)
+    stored = json.loads(next((mc / "conventional").glob("seed_*.json")).read_text())
+    for g in ("conventional", "cikan"):
+        (mc / g / "seed_00099.json").write_text(json.dumps({"config": stored["config"], "metrics": {
+            "governor": g, "seed": 99, "refused": "no feasible time shift", "success": False}}))
+    text = write_report(mc, tmp_path / "rep", figures=False).read_text()
+    assert "Starts Verify refused (no feasible shift at the first instant: not flown, not in the table): " \
+           "conventional 1 of 4, cikan 1 of 4." in text
+    assert "| conventional | 3 | 3 | 0 |" in text
+
+
 def test_report_from_a_montecarlo_directory(campaign, tmp_path, drawn):
     page = write_report(campaign, tmp_path / "rep")
     _assert_page(page)

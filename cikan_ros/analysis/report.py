@@ -81,9 +81,22 @@ def load_runs(path: str | Path, cfg: Config | None = None) -> tuple[str, list[Ru
     jsons = sorted(p.glob("*/seed_*.json"), key=lambda j: (
         order.index(j.parent.name) if j.parent.name in order else len(order), j.parent.name, j.name))
     if jsons:
-        loaded = [run_from_npz(j) for j in jsons]
+        # A start Verify refused (robust Verify) was not flown: its JSON says why and has no npz.
+        loaded = [run_from_npz(j) for j in jsons if j.with_suffix(".npz").exists()]
+        if not loaded:
+            raise CikanError(f"{p}: Verify refused every start of the campaign ({len(jsons)}); nothing flew")
         return "montecarlo", [r for r, _ in loaded], [m for _, m in loaded]
     raise CikanError(f"{p} holds no rosbag2 bag (metadata.yaml) and no Monte Carlo results (*/seed_*.json)")
+
+
+def refused_starts(mc_dir: str | Path) -> dict[str, int]:
+    """``{governor: starts refused}`` of a Monte Carlo directory (runs stored with ``refused``
+    and no trajectory), for the governors that had any."""
+    out: dict[str, int] = {}
+    for j in sorted(Path(mc_dir).glob("*/seed_*.json")):
+        if not j.with_suffix(".npz").exists() and "refused" in json.loads(j.read_text()).get("metrics", {}):
+            out[j.parent.name] = out.get(j.parent.name, 0) + 1
+    return out
 
 
 def _metrics_table(runs: list[RunData], metrics: list[dict[str, Any]]) -> str:
@@ -126,8 +139,13 @@ def write_report(path: str | Path, out_dir: str | Path, cfg: Config | None = Non
         table = to_markdown(rows, paper_rows=(cfg_flown.scenario.name, cfg_flown.mission.approach) == ("paper", "behind"))
         (out / "table2.md").write_text(table)
         (out / "table2.csv").write_text(to_csv(rows))
+        refused = refused_starts(path)
+        first = sorted(refused, key=lambda g: (govs.index(g) if g in govs else len(govs), g))
+        said = ("Starts Verify refused (no feasible shift at the first instant: not flown, not in the "
+                "table): " + ", ".join(f"{g} {refused[g]} of {refused[g] + sum(r.governor == g for r in runs)}"
+                                       for g in first) + ".\n\n") if refused else ""
         lines += [flown_markdown(flown_rows(cfg_flown, governors_text(govs, cfg_flown))),
-                  "## Table 2", "", table, "", "What it shows (generated from the table):", "",
+                  "## Table 2", "", table, "", said + "What it shows (generated from the table):", "",
                   summary(rows), "",
                   f"Per governor over its runs (the trajectory figures draw the first {MAX_DRAWN} runs of each; "
                   f"Fig. 4 shows run `{runs[worst].label}`, the one closest to the LoS boundary).", ""]
