@@ -162,7 +162,7 @@ def test_models_page_tables_come_from_cards_and_data(data_path: Path, tmp_path: 
     models = shipped_models(tmp_path / "models")
     page, meta = models_page("# intro\n", data_path, "val", tmp_path / "models")
     assert meta["models"] == 2 and page.startswith("# intro")
-    assert "| a | paper, behind | vnb |" in page and "| b | paper, behind | vnb-prev |" in page
+    assert "| a | paper, behind, nominal | vnb |" in page and "| b | paper, behind, nominal | vnb-prev |" in page
     table = loss_breakdown(models, data_path, "val")
     rows = {line.split(" | ")[0].lstrip("| "): line for line in table.splitlines() if line.startswith("| ")}
     df, _ = read_parquet(data_path)
