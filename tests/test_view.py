@@ -173,7 +173,12 @@ def test_a_live_mission_in_the_browser(browser_context: Any, ros_env: int, tmp_p
             n = page.evaluate("window.cikanView.ready ? document.getElementById('plots').data[0].x.length : 0")
             if n and (not counts or n != counts[-1]):
                 counts.append(n)
-            if page.evaluate("!!(window.cikanView.data && window.cikanView.data.complete)"):
+            # complete once the page draws the whole mission (not when the data arrives: the
+            # plots are redrawn after it, and the count read above may precede that)
+            if page.evaluate("!!(window.cikanView.shown && window.cikanView.shown.complete)"):
+                n = page.evaluate("document.getElementById('plots').data[0].x.length")
+                if not counts or n != counts[-1]:
+                    counts.append(n)
                 break
             page.wait_for_timeout(200)
         flight.join(60.0)

@@ -265,6 +265,7 @@ async function render(d) {
   slider.value = String(view.index);
   label(d, view.index);
   status(d);
+  view.shown = d;  // the data the page now draws (view.data is set before the plots are redrawn)
 }
 
 slider.addEventListener("input", () => {
