@@ -104,7 +104,7 @@ def pooled_accept_rate(runs: list[tuple[dict[str, Any], dict[str, Any], Path]]) 
 
 def _card(name: str, flat: dict[str, Any] | None = None) -> dict[str, Any] | None:
     """The model card of governor ``name`` as the campaign (configuration ``flat``) flew it: a
-    family resolves to its scenario's model for the approach side."""
+    family resolves to its scenario's model for the approach side and Verify mode."""
     from ..learn.arch import FAMILIES
     from ..learn.modelfile import MODELS_DIR, flown_model_dir
 
@@ -122,13 +122,17 @@ def campaign_scenario(mc_dir: str | Path) -> tuple[str, str]:
     return name, approach
 
 
+def verify_text(robust: bool, truth: str) -> str:
+    """The Verify mode as the indexes name it: "nominal", or "robust (<truth>)"."""
+    return f"robust ({truth})" if robust else "nominal"
+
+
 def campaign_world(mc_dir: str | Path) -> tuple[str, str, str]:
-    """(scenario name, approach side, Verify) a Monte Carlo campaign flew (its first stored run):
-    Verify is "nominal", or "robust (<truth>)" as the bench index names it."""
+    """(scenario name, approach side, Verify) a Monte Carlo campaign flew (its first stored run;
+    Verify as :func:`verify_text` names it)."""
     for js in sorted(Path(mc_dir).glob("*/seed_*.json")):
         cfg = config_from_flat(json.loads(js.read_text())["config"])
-        verify = f"robust ({cfg.truth.name})" if cfg.tsg.robust else "nominal"
-        return cfg.scenario.name, cfg.mission.approach, verify
+        return cfg.scenario.name, cfg.mission.approach, verify_text(cfg.tsg.robust, cfg.truth.name)
     return "paper", "behind", "nominal"
 
 
@@ -337,8 +341,8 @@ def bench_index(root: str | Path) -> str:
     single mission), Verify calls per active update (the conventional TSG's beside), the share
     of updates answered by searching and the network's acceptance; then, the network trusted,
     the per-update speed-up on the benchmark's states (mean / worst) and the conventional
-    update's mean time. A model flown with ``learned.foreign_model`` (made for another Verify,
-    as the shipped ones are under robust Verify) is marked "(foreign)"."""
+    update's mean time. A model flown with ``learned.foreign_model`` (made for another scenario,
+    side or Verify) is marked "(foreign)"."""
     from ..registry import LEARNED_NAMES
 
     lines = ["| scenario | side | Verify | model | mission speed-up mean / worst | Verify calls per active "
@@ -354,7 +358,7 @@ def bench_index(root: str | Path) -> str:
             b = json.loads(f.read_text())
         except (OSError, ValueError) as exc:
             raise CikanError(f"cannot read bench file {f}: {exc}") from None
-        verify = f"robust ({b.get('truth', 'nominal')})" if b.get("robust") else "nominal"
+        verify = verify_text(bool(b.get("robust")), b.get("truth", "nominal"))
         if "refused" in b:   # cikan bench: Verify refused every start (timing.EveryStartRefusedError)
             lines.append(f"| {scenario} | {side} | {verify} | - | every start refused: {b['refused']} "
                          "| - | - | - | - | - |")
