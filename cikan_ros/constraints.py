@@ -104,6 +104,23 @@ def margins_kernel(x_d: NDArray, x_c: NDArray, u: NDArray, cp: NDArray, out: NDA
         out[k, 3] = h3_approach_velocity_kernel(x_d[k], x_c[k], cp)
 
 
+@nb.njit(cache=True)
+def step_margins_kernel(x_d: NDArray, x_c: NDArray, u: NDArray, path: NDArray, chief_path: NDArray,
+                        cp: NDArray, h1_tol: float, h3_tol: float, out: NDArray) -> int:
+    """One control step of the truth in one call: ``out`` (4,) the margins of (x_d, x_c, u) as
+    :func:`margins_kernel` (h1, h1 normalised, h2, h3), and the number of rows 1 .. S-1 of the
+    substep paths (S + 1, 6) whose normalised h1 exceeds ``h1_tol`` or whose h3 exceeds ``h3_tol``
+    (NaN, not evaluated, is not a violation)."""
+    margins_kernel(x_d[None, :], x_c[None, :], u[None, :], cp, out[None, :])
+    row = np.empty((1, 4))
+    bad = 0
+    for j in range(1, path.shape[0] - 1):
+        margins_kernel(path[j:j + 1], chief_path[j:j + 1], u[None, :], cp, row)
+        if row[0, 1] > h1_tol or row[0, 3] > h3_tol:
+            bad += 1
+    return bad
+
+
 class Margins(NamedTuple):
     """Constraint values along a trajectory, each (N,): NaN where not evaluated."""
 

@@ -18,7 +18,7 @@ from scipy.optimize import brentq
 
 from .ancillary import AncillaryLaw, Plan
 from .config import Config
-from .constraints import Margins, margins
+from .constraints import Margins, constraint_params, margins, step_margins_kernel
 from .control import ftre_control
 from .errors import NoFeasibleShiftError, StateError
 from .governor import Governor, UpdateRecord, is_active
@@ -299,6 +299,24 @@ def between_violations(cfg: Config, x_d_path: NDArray, x_c_path: NDArray) -> int
     m = margins(x_d_path[1:-1], x_c_path[1:-1], np.zeros(3), cfg.constraints, 1.0, cfg.side)
     h1_bad, h3_bad = state_violations(m, cfg)
     return int(np.count_nonzero(h1_bad | h3_bad))
+
+
+class StepJudge:
+    """What the simulator logs of each control step of the truth, in one compiled call: the
+    margins of the state at t_k (as :func:`~cikan_ros.constraints.margins`, h2 against
+    ``u_limit``) and :func:`between_violations` over the step's substeps."""
+
+    def __init__(self, cfg: Config, u_limit: float) -> None:
+        self.cp = constraint_params(cfg.constraints, u_limit, cfg.side)
+        self.tol = (cfg.constraints.plant_h1_tolerance, cfg.constraints.plant_h3_tolerance_kmps)
+        self.out = np.empty(4)
+
+    def __call__(self, x_d: NDArray, x_c: NDArray, u: NDArray, x_d_path: NDArray,
+                 x_c_path: NDArray) -> tuple[float, float, float, int]:
+        """(normalised h1, h2 (km/s^2), h3 (km/s) at t_k, violations between the samples)."""
+        bad = step_margins_kernel(np.asarray(x_d, dtype=float), np.asarray(x_c, dtype=float),
+                                  np.asarray(u, dtype=float), x_d_path, x_c_path, self.cp, *self.tol, self.out)
+        return float(self.out[1]), float(self.out[2]), float(self.out[3]), int(bad)
 
 
 @dataclass(frozen=True)

@@ -82,7 +82,7 @@ class ControllerNode(Node):
                              lambda: None)
 
     def diag(self, level: str, text: str, stamp: int, values: dict[str, Any]) -> None:
-        self.pub_diag.publish(cv.diagnostic(NAME, level, text, stamp, values))
+        self.pub_diag.publish(cdr.diagnostic_cdr(NAME, level, text, stamp, values))
 
     def stamp_or_last(self, stamp: int | None) -> int:
         """The stamp a rejection is reported at: the message's, or, when it could not be read,

@@ -112,8 +112,8 @@ class GovernorNode(Node):
 
     def diag(self, level: str, text: str, values: dict[str, Any], stamp: int | None = None) -> None:
         stamp = self.timeline.stamp_ns(max(self.last_k, 0)) if stamp is None else stamp
-        self.pub_diag.publish(cv.diagnostic(NAME, level, text, stamp, {"governor": self.governor.name,
-                                                                         **values}))
+        self.pub_diag.publish(cdr.diagnostic_cdr(NAME, level, text, stamp, {"governor": self.governor.name,
+                                                                              **values}))
 
     def on_odom(self, which: str, data: bytes) -> None:
         stamp = None   # unknown until the bytes are read
@@ -143,15 +143,15 @@ class GovernorNode(Node):
         try:
             rec = self.loop.decide(self.governor, k, x_d, x_c, self.tau)
             if rec is None:
-                self.pub_tau.publish(cv.time_shift_msg(stamp, self.tau, PATH_HOLD))
+                self.pub_tau.publish(cdr.time_shift_cdr(stamp, self.tau, PATH_HOLD))
                 return
-            msg = cv.time_shift_msg(stamp, rec.tau_s, rec.path)
+            msg = cdr.time_shift_cdr(stamp, rec.tau_s, rec.path)
         except Exception as exc:  # a failing governor must not end the mission: hold the last tau
             self.get_logger().error(f"governor failed at step {k}: {exc}")
             self.diag("error", f"governor failed: {exc}; holding the last verified shift",
                       {"event": "failed", "k": k}, stamp)
             if self.tau is not None:
-                self.pub_tau.publish(cv.time_shift_msg(stamp, self.tau, PATH_HOLD))
+                self.pub_tau.publish(cdr.time_shift_cdr(stamp, self.tau, PATH_HOLD))
             return
         self.tau = rec.tau_s
         self.pub_tau.publish(msg)

@@ -40,7 +40,7 @@ from sensor_msgs.msg import JointState, TimeReference
 from visualization_msgs.msg import MarkerArray
 
 from cikan_ros.constraints import margins
-from cikan_ros.mission import ClosedLoop, between_violations, nominal_start, sample_start
+from cikan_ros.mission import ClosedLoop, StepJudge, nominal_start, sample_start
 from cikan_ros.ros import cdr, convert as cv
 from cikan_ros.ros.graph import QOS_STREAM, PeerWatch, Readiness, qos_for, run_node
 from cikan_ros.ros.graph_spec import (ACCEL_CMD, CHIEF_ODOM, CLOCK, DEPUTY_ODOM, DIAGNOSTICS, SCENE_CONSTRAINTS,
@@ -78,6 +78,7 @@ class SimNode(Node):
         self.truth = Truth(cfg, None if seed < 0 else seed, self.n_steps)
         self.u_max = cfg.control.u_max_kmps2
         self.u_limit = cfg.thrust_limit_kmps2  # h2 on the truth
+        self.judge = StepJudge(cfg, self.u_limit)
         self.k = 0
         self.x_c = np.zeros(6)
         self.waiting = False
@@ -94,11 +95,9 @@ class SimNode(Node):
         self.pub_truth_chief = self.readiness.publisher(Odometry, TRUTH_CHIEF, QOS_STREAM)
         self.pub_truth_deputy = self.readiness.publisher(Odometry, TRUTH_DEPUTY, QOS_STREAM)
         self.pub_truth_accel = self.readiness.publisher(AccelStamped, TRUTH_ACCEL, QOS_STREAM)
-        # Each publisher's own message, filled in place every step: the states and the applied
-        # thrust serialised (cikan_ros.ros.cdr, published raw), the clock as a message (cv.clock_msg's ``out``).
-        self.clock = cv.clock_msg(0)
+        # Every message of a step goes out serialised (cikan_ros.ros.cdr, published raw): the
+        # states and the applied thrust refilled in place, the clock and the diagnostics written whole.
         self.truth_accel = cdr.AccelCdr()
-        self.step_diag: DiagnosticArray | None = None   # the per-step record, refilled (cv.diagnostic's ``out``)
         self.serialised = {"truth_chief": cdr.OdometryCdr("chief", False),
                            "truth_deputy": cdr.OdometryCdr("deputy", False),
                            "chief": cdr.OdometryCdr("chief", True), "deputy": cdr.OdometryCdr("deputy", True)}
@@ -135,8 +134,7 @@ class SimNode(Node):
         its own: this one's messages begin at step 0."""
         x_c, u = self.truth.chief_state(0), np.zeros(3)
         path = self.truth.deputy_path(0, self.x, u)
-        margins(self.x, x_c, u, self.cfg.constraints, self.u_limit, self.cfg.side)
-        between_violations(self.cfg, path, self.truth.chief_path(0))
+        self.judge(self.x, x_c, u, path, self.truth.chief_path(0))
         stamp = self.timeline.stamp_ns(0)
         SceneStream(self.cfg, pred).step(0, stamp, self.timeline.seconds(stamp), x_c, self.x, u, 0.0)
 
@@ -164,7 +162,7 @@ class SimNode(Node):
         self.pub_chief.publish(states["chief"](truth.measure_chief(self.k), stamp, 0.0 * cov))
         self.pub_deputy.publish(states["deputy"](x_seen, stamp, cov))
         self.t_published = time.perf_counter()
-        self.pub_clock.publish(cv.clock_msg(stamp, self.clock))
+        self.pub_clock.publish(cdr.clock_cdr(stamp))
         self.pub_truth_chief.publish(states["truth_chief"](self.x_c, stamp))
         self.pub_truth_deputy.publish(states["truth_deputy"](self.x, stamp))
         if self.loop.finished(self.k, self.x, self.x_c, self.stop_on_dock):
@@ -207,8 +205,8 @@ class SimNode(Node):
     def reject(self, text: str, stamp: int) -> None:
         self.rejected += 1
         self.get_logger().warning(text)
-        self.pub_diag.publish(cv.diagnostic(NAME, "warn", text, self.stamp(),
-                                            {"k": self.k, "event": "rejected", "stamp_ns": stamp}))
+        self.pub_diag.publish(cdr.diagnostic_cdr(NAME, "warn", text, self.stamp(),
+                                                 {"k": self.k, "event": "rejected", "stamp_ns": stamp}))
 
     def apply(self, u: np.ndarray, source: str) -> None:
         """Integrate step k with the applied thrust u (km/s^2) to k+1 and publish the states of
@@ -236,15 +234,13 @@ class SimNode(Node):
             ended = self.publish_state()
         stamp = self.timeline.stamp_ns(k)
         self.pub_truth_accel.publish(self.truth_accel(u, stamp))
-        m = margins(x, x_c, u, self.cfg.constraints, self.u_limit, self.cfg.side)
-        between = between_violations(self.cfg, path, self.truth.chief_path(k))
+        h1n, h2, h3, between = self.judge(x, x_c, u, path, self.truth.chief_path(k))
         level = "ok" if source == "command" else "warn"
         text = "step" if source == "command" else "controller missed its deadline: zero thrust"
-        self.step_diag = cv.diagnostic(NAME, level, text, stamp, {
+        self.pub_diag.publish(cdr.diagnostic_cdr(NAME, level, text, stamp, {
             "k": k, "event": "step", "thrust": source, "u_kmps2": u,
-            "h1_normalised": m.h1_normalised[0], "h2_kmps2": m.h2[0], "h3_kmps": m.h3[0],
-            "between_violations": between, "latency_ms": ms}, self.step_diag)
-        self.pub_diag.publish(self.step_diag)
+            "h1_normalised": h1n, "h2_kmps2": h2, "h3_kmps": h3,
+            "between_violations": between, "latency_ms": ms}))
         if ended:
             self.finish()
         else:
@@ -309,7 +305,7 @@ class SimNode(Node):
                   "update_step_ms_max": max(self.latency_update_ms, default=float("nan")),
                   "deadline_misses": self.misses, "rejected": self.rejected,
                   "h1_normalised": m.h1_normalised[0], "h3_kmps": m.h3[0]}
-        self.pub_diag.publish(cv.diagnostic(NAME, "ok", "mission complete", self.stamp(), values))
+        self.pub_diag.publish(cdr.diagnostic_cdr(NAME, "ok", "mission complete", self.stamp(), values))
         self.get_logger().info(f"mission complete: {self.k} steps in {wall:.2f} s "
                                f"(rtf {values['rtf']:.0f}), {self.misses} deadline misses")
         self.done.set_result(True)

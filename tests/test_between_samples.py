@@ -9,7 +9,8 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from cikan_ros.config import load_config
-from cikan_ros.mission import between_violations
+from cikan_ros.constraints import margins
+from cikan_ros.mission import StepJudge, between_violations
 from cikan_ros.truth import Truth
 
 MU = 398600.4418
@@ -47,11 +48,16 @@ def test_between_violations_count_the_substeps_outside_the_cone():
     assert np.all(np.abs(h1n) > 1e-4)     # no substep on the knife edge
     expected = int(np.count_nonzero(h1n > 0))
     assert 0 < expected < 9 and count == expected
+    # the simulator's one-call judge of a step: the same margins at t_k and the same count
+    judge = StepJudge(cfg, cfg.thrust_limit_kmps2)
+    m = margins(x_d, x_c, u, cfg.constraints, cfg.thrust_limit_kmps2, cfg.side)
+    assert judge(x_d, x_c, u, path, truth.chief_path(1)) == (m.h1_normalised[0], m.h2[0], m.h3[0], expected)
     # the samples themselves (first and last rows) are not counted: outside the cone at both
     # ends, inside in between, is no violation between samples
     outside = x_c + (path[-1] - truth.chief_path(1)[-1])
     assert between_violations(cfg, np.array([outside] + [x_d] * 9 + [outside]), np.array([x_c] * 11)) == 0
     assert between_violations(cfg, np.array([x_d] + [outside] * 9 + [x_d]), np.array([x_c] * 11)) == 9
+    assert judge(outside, x_c, u, np.array([x_d] + [outside] * 9 + [x_d]), np.array([x_c] * 11))[3] == 9
     np.testing.assert_array_equal(truth.chief_path(1)[-1], truth.chief_state(2))
 
 

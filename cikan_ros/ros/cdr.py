@@ -3,6 +3,13 @@ building the Python message: what a node does with a message every step (rclpy's
 builds the whole nested message, ~35 us for an Odometry; its publish converts one to C, ~30 us),
 and the stamp the recorder logs a message at.
 
+Written every step, published raw: the states and the thrust (:class:`OdometryCdr`,
+:class:`AccelCdr`, refilled in place), the clock (:func:`clock_cdr`), the time shift
+(:func:`time_shift_cdr`), the per-step diagnostic (:func:`diagnostic_cdr`), the telemetry
+(:class:`TelemetryCdr`) and the scene's moving bodies (:class:`MarkersCdr`). Each gives the bytes a
+publisher sends for the message :mod:`cikan_ros.ros.convert` builds (tested field by field against
+rclpy's deserialiser and byte for byte against rosbags' serialiser).
+
 Little-endian CDR (XCDR1): a 4-byte encapsulation header (byte 1 = 0x01), then the fields; a
 string is a uint32 length (with its NUL), the bytes and a NUL; a double is 8-aligned from the end
 of the encapsulation header. Anything else is left to rclpy (rclpy is imported here, never in
@@ -11,8 +18,9 @@ of the encapsulation header. Anything else is left to rclpy (rclpy is imported h
 
 from __future__ import annotations
 
+import functools
 import struct
-from typing import Any
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 from geometry_msgs.msg import AccelStamped
@@ -21,8 +29,10 @@ from numpy.typing import ArrayLike, NDArray
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import TimeReference
 
+from ..scene import Shape
 from ..units import km_to_m
-from .convert import NS_PER_S, MessageError, accel_msg, odom_msg, time_to_ns
+from .convert import (LEVELS, NS_PER_S, MessageError, accel_msg, markers_msg, odom_msg, shift_ns,
+                      status_text, telemetry_msg, time_to_ns)
 
 #: CDR (XCDR1) little-endian encapsulation: what rmw_fastrtps sends.
 _CDR_LE = b"\x00\x01"
@@ -210,3 +220,190 @@ def cdr_stamp_ns(data: bytes, type_name: str = "") -> int:
     fmt = "<iI" if data[1] & 1 else ">iI"
     sec, nsec = struct.unpack_from(fmt, data, offset)
     return sec * NS_PER_S + nsec
+
+
+# -- messages written whole, every step --------------------------------------------------------
+_HEADER = b"\x00\x01\x00\x00"   # little-endian CDR encapsulation, no options
+_EMPTY_STRING = _LENGTH.pack(1) + b"\x00"
+
+
+def _put_string(out: bytearray, text: str) -> None:
+    """Append a CDR string (4-aligned: the encapsulation header is 4 bytes, so absolute offsets
+    align as the stream's do)."""
+    out += bytes(-len(out) % 4)
+    raw = text.encode()
+    out += _LENGTH.pack(len(raw) + 1)
+    out += raw
+    out += b"\x00"
+
+
+def clock_cdr(stamp_ns: int) -> bytes:
+    """The bytes of ``convert.clock_msg(stamp_ns)`` (rosgraph_msgs/Clock)."""
+    return _HEADER + _TIME.pack(*divmod(int(stamp_ns), NS_PER_S))
+
+
+def time_shift_cdr(stamp_ns: int, tau_s: float, source: str) -> bytes:
+    """The bytes of ``convert.time_shift_msg(stamp_ns, tau_s, source)`` (sensor_msgs/TimeReference:
+    Header with an empty frame_id, time_ref = t_k + tau, source); MessageError, as there, for a
+    tau off the whole-nanosecond grid."""
+    ref = int(stamp_ns) + shift_ns(tau_s)
+    out = bytearray(_HEADER + _TIME.pack(*divmod(int(stamp_ns), NS_PER_S)) + _EMPTY_STRING)
+    out += bytes(-len(out) % 4)
+    out += _TIME.pack(*divmod(ref, NS_PER_S))
+    _put_string(out, source)
+    return bytes(out)
+
+
+def diagnostic_cdr(name: str, level: str, message: str, stamp_ns: int,
+                   values: Mapping[str, Any] | None = None) -> bytes:
+    """The bytes of ``convert.diagnostic(name, level, message, stamp_ns, values)``
+    (diagnostic_msgs/DiagnosticArray with one status; the values' text as there)."""
+    out = bytearray(_HEADER + _TIME.pack(*divmod(int(stamp_ns), NS_PER_S)) + _EMPTY_STRING)
+    out += bytes(-len(out) % 4)
+    out += _LENGTH.pack(1)                      # one status
+    out += LEVELS[level]                        # a byte (octet)
+    for text in (name, message, "cikan_ros"):
+        _put_string(out, text)
+    values = values or {}
+    out += bytes(-len(out) % 4)
+    out += _LENGTH.pack(len(values))
+    for key, value in values.items():
+        _put_string(out, key)
+        _put_string(out, status_text(value))
+    return bytes(out)
+
+
+@functools.lru_cache(maxsize=1)
+def typestore() -> Any:
+    """rosbags' type store of ROS 2 Jazzy (its CDR serialiser writes the exact bytes a publisher
+    sends; rclpy's ``serialize_message`` appends stray bytes to some types, JointState and
+    MarkerArray among them, which rosbags refuses: "CDR message size mismatch")."""
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS2_JAZZY)
+
+
+def rosbags_message(msg: Any, store: Any) -> Any:
+    """The rosbags message equal to an rclpy message, field by field."""
+    cls = store.types[msg.__class__.__module__.split(".")[0] + "/msg/" + msg.__class__.__name__]
+    fields = {}
+    for name, kind in msg.get_fields_and_field_types().items():
+        value = getattr(msg, name)
+        if hasattr(value, "get_fields_and_field_types"):
+            fields[name] = rosbags_message(value, store)
+        elif kind.startswith("sequence<") and kind[9:-1] in ("double", "float", "int32", "uint32", "uint8"):
+            fields[name] = np.asarray(value, dtype={"double": np.float64, "float": np.float32, "int32": np.int32,
+                                                    "uint32": np.uint32, "uint8": np.uint8}[kind[9:-1]])
+        elif isinstance(value, list) and value and hasattr(value[0], "get_fields_and_field_types"):
+            fields[name] = [rosbags_message(v, store) for v in value]
+        elif isinstance(value, list):
+            fields[name] = list(value)
+        elif kind == "octet" and isinstance(value, bytes):  # rclpy's byte: one bytes object
+            fields[name] = value[0]
+        else:
+            fields[name] = value
+    return cls(**fields)
+
+
+def exact_cdr(msg: Any, type_name: str) -> bytes:
+    """The CDR bytes a publisher sends for the rclpy message ``msg`` of ROS type ``type_name``
+    (rosbags' serialiser; alignment padding zeros). ~20 us for a small message: for templates and
+    occasional messages."""
+    store = typestore()
+    return bytes(store.serialize_cdr(rosbags_message(msg, store), type_name))
+
+
+#: What a template's stamps and refilled doubles hold when it is made (found again in its bytes):
+#: a stamp no mission has, and doubles far outside any mission's values, each template's distinct.
+_STAMP_SENTINEL_NS = 0x5EADBEEF * NS_PER_S + 0x3ADBEEF1
+
+
+def _sentinels(n: int, exponent: int) -> NDArray:
+    """n distinct doubles 2^exponent (1 + i / 1024), exact in binary."""
+    return np.ldexp(1.0 + np.arange(n) / 1024.0, exponent)
+
+
+class _Template:
+    """The exact bytes (:func:`exact_cdr`) of a message whose layout repeats from step to step
+    (the same strings, the same sequence lengths), made once with sentinel values where the
+    fields to refill are, then refilled in place: the stamps, and runs of doubles viewed as numpy
+    arrays into the bytes."""
+
+    def __init__(self, msg: Any, type_name: str) -> None:
+        self.buf = bytearray(exact_cdr(msg, type_name))
+        key = _TIME.pack(*divmod(_STAMP_SENTINEL_NS, NS_PER_S))
+        self.stamps = [i for i in range(len(self.buf) - 7) if self.buf[i:i + 8] == key]
+
+    def doubles(self, sentinels: NDArray) -> NDArray:
+        """A writable view of the run of doubles made from ``sentinels`` (found exactly once)."""
+        key = np.asarray(sentinels, dtype="<f8").tobytes()
+        at = self.buf.find(key)
+        if at < 0 or self.buf.find(key, at + 1) >= 0:
+            raise ValueError("a template's sentinel doubles are not where one run of them should be")
+        return np.frombuffer(self.buf, dtype="<f8", count=len(sentinels), offset=at)
+
+    def stamp(self, stamp_ns: int) -> None:
+        sec_nsec = divmod(int(stamp_ns), NS_PER_S)
+        for at in self.stamps:
+            _TIME.pack_into(self.buf, at, *sec_nsec)
+
+
+class TelemetryCdr:
+    """The bytes of ``convert.telemetry_msg(keys, values, stamp_ns)`` (sensor_msgs/JointState)
+    for the keys given once, refilled in place."""
+
+    def __init__(self, keys: Sequence[str]) -> None:
+        marks = _sentinels(len(keys), 900)
+        self.template = _Template(telemetry_msg(list(keys), marks, _STAMP_SENTINEL_NS), "sensor_msgs/msg/JointState")
+        self.position = self.template.doubles(marks)
+
+    def __call__(self, values: ArrayLike, stamp_ns: int) -> bytes:
+        self.template.stamp(stamp_ns)
+        self.position[:] = values
+        return bytes(self.template.buf)
+
+
+#: The shapes :class:`MarkersCdr` refills: a sphere (its centre is the marker's pose) and a
+#: sphere list (its points); both are scaled by their size in all three axes.
+REFILLED_KINDS = ("sphere", "sphere_list")
+
+
+class MarkersCdr:
+    """The bytes of ``convert.markers_msg(shapes, stamp_ns)`` (visualization_msgs/MarkerArray)
+    for shapes of :data:`REFILLED_KINDS` whose layout repeats (the same names, kinds, colours
+    and numbers of points: one template per layout, made on first use), their points and sizes
+    refilled in place: the simulator's moving bodies, every step."""
+
+    def __init__(self) -> None:
+        self.templates: dict[tuple, tuple[_Template, list[tuple[NDArray, NDArray]]]] = {}
+
+    @staticmethod
+    def layout(shapes: Sequence[Shape]) -> tuple:
+        return tuple((s.ns, int(s.ident), s.kind, len(s.points), s.color, tuple(s.colors)) for s in shapes)
+
+    def __call__(self, shapes: Sequence[Shape], stamp_ns: int) -> bytes:
+        key = self.layout(shapes)
+        made = self.templates.get(key)
+        if made is None:
+            made = self.templates[key] = self._template(shapes)
+        template, fields = made
+        template.stamp(stamp_ns)
+        for shape, (scale, points) in zip(shapes, fields):
+            scale[:] = float(shape.size) * 1e3
+            points[:] = km_to_m(np.asarray(shape.points, dtype=float)[:1] if shape.kind == "sphere"
+                                else shape.points).ravel()
+        return bytes(template.buf)
+
+    @staticmethod
+    def _template(shapes: Sequence[Shape]) -> tuple[_Template, list[tuple[NDArray, NDArray]]]:
+        bad = [s.kind for s in shapes if s.kind not in REFILLED_KINDS]
+        if bad:
+            raise ValueError(f"MarkersCdr refills {', '.join(REFILLED_KINDS)} shapes, not {bad[0]}")
+        marked, marks = [], []
+        for i, s in enumerate(shapes):
+            n = 1 if s.kind == "sphere" else len(s.points)
+            size, pts = _sentinels(1, 700 + 4 * i), _sentinels(3 * n, 702 + 4 * i)
+            marked.append(Shape(s.ns, s.ident, s.kind, pts.reshape(n, 3), float(size[0]), s.color, s.colors))
+            marks.append((np.repeat(float(size[0]) * 1e3, 3), km_to_m(pts)))
+        template = _Template(markers_msg(marked, _STAMP_SENTINEL_NS), "visualization_msgs/msg/MarkerArray")
+        return template, [(template.doubles(scale), template.doubles(points)) for scale, points in marks]

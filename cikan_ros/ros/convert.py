@@ -54,12 +54,9 @@ def time_to_ns(stamp: Any) -> int:
     return int(stamp.sec) * NS_PER_S + int(stamp.nanosec)
 
 
-def clock_msg(ns: int, out: Clock | None = None) -> Clock:
-    """rosgraph_msgs/Clock at absolute time ``ns`` (``out``: filled in place and returned)."""
-    if out is None:
-        return Clock(clock=ns_to_time(ns))
-    set_stamp(out.clock, ns)
-    return out
+def clock_msg(ns: int) -> Clock:
+    """rosgraph_msgs/Clock at absolute time ``ns``."""
+    return Clock(clock=ns_to_time(ns))
 
 
 class Timeline:
@@ -186,15 +183,22 @@ def accel_from_si(frame_id: str, a_si: ArrayLike, u_max_kmps2: float) -> NDArray
 
 
 # -- time shift ---------------------------------------------------------------------------------
+def shift_ns(tau_s: float) -> int:
+    """tau (s) as whole nanoseconds; MessageError when it is not on that grid (every verified
+    shift is), so that the receiver's ``ns_to_seconds(time_ref - stamp)`` is the same float."""
+    tau_ns = seconds_to_ns(tau_s)
+    if ns_to_seconds(tau_ns) != tau_s:
+        raise MessageError(f"time shift {tau_s!r} s is not a whole number of nanoseconds")
+    return tau_ns
+
+
 def time_shift_msg(stamp_ns: int, tau_s: float, source: str) -> TimeReference:
     """sensor_msgs/TimeReference: header.stamp = t_k, time_ref = t_k + tau, source = decision path.
 
     tau must lie on the whole-nanosecond grid (every verified shift does), so the receiver's
     ``ns_to_seconds(time_ref - stamp)`` is the same float.
     """
-    tau_ns = seconds_to_ns(tau_s)
-    if ns_to_seconds(tau_ns) != tau_s:
-        raise MessageError(f"time shift {tau_s!r} s is not a whole number of nanoseconds")
+    tau_ns = shift_ns(tau_s)
     msg = TimeReference()
     msg.header.stamp = ns_to_time(stamp_ns)
     msg.time_ref = ns_to_time(stamp_ns + tau_ns)
@@ -223,39 +227,29 @@ LEVELS = {"ok": DiagnosticStatus.OK, "warn": DiagnosticStatus.WARN,
           "error": DiagnosticStatus.ERROR, "stale": DiagnosticStatus.STALE}
 
 
-def _text(value: Any) -> str:
+def status_text(value: Any) -> str:
     """Diagnostic value text: floats as repr (round-trips exactly), sequences space-separated."""
     if isinstance(value, (float, np.floating)):
         return repr(float(value))
     if isinstance(value, (list, tuple, np.ndarray)):
-        return " ".join(_text(v) for v in value)
+        return " ".join(status_text(v) for v in value)
     return str(value)
 
 
 def diagnostic(name: str, level: str, message: str, stamp_ns: int,
-               values: Mapping[str, Any] | None = None, out: DiagnosticArray | None = None) -> DiagnosticArray:
-    """A DiagnosticArray with one status; values become KeyValue strings (floats exactly).
-
-    ``out``: a publisher's own message from an earlier call, refilled in place and returned when
-    its status has this name and these keys in this order (the simulator's per-step record;
-    building a status of ten values afresh costs ~30 us), else a new one."""
-    values = values or {}
-    status = out.status[0] if out is not None and len(out.status) == 1 else None
-    if status is None or status.name != name or [kv.key for kv in status.values] != list(values):
-        arr = DiagnosticArray()
-        arr.header.stamp = ns_to_time(stamp_ns)
-        arr.status = [_status(name, level, message, values)]
-        return arr
-    set_stamp(out.header.stamp, stamp_ns)
-    status.level, status.message = LEVELS[level], message
-    for kv, value in zip(status.values, values.values()):
-        kv.value = _text(value)
-    return out
+               values: Mapping[str, Any] | None = None) -> DiagnosticArray:
+    """A DiagnosticArray with one status; values become KeyValue strings (floats exactly,
+    :func:`status_text`). What a node publishes every step goes out serialised instead
+    (:func:`cikan_ros.ros.cdr.diagnostic_cdr`, the same bytes)."""
+    arr = DiagnosticArray()
+    arr.header.stamp = ns_to_time(stamp_ns)
+    arr.status = [_status(name, level, message, values)]
+    return arr
 
 
 def _status(name: str, level: str, message: str, values: Mapping[str, Any] | None) -> DiagnosticStatus:
     status = DiagnosticStatus(level=LEVELS[level], name=name, message=message, hardware_id="cikan_ros")
-    status.values = [KeyValue(key=k, value=_text(v)) for k, v in (values or {}).items()]
+    status.values = [KeyValue(key=k, value=status_text(v)) for k, v in (values or {}).items()]
     return status
 
 
@@ -283,12 +277,12 @@ def floats(text: str) -> NDArray:
 
 
 # -- telemetry and scene -----------------------------------------------------------------------
-def telemetry_msg(keys: list[str], values: ArrayLike, stamp_ns: int, into: JointState | None = None) -> JointState:
+def telemetry_msg(keys: list[str], values: ArrayLike, stamp_ns: int) -> JointState:
     """The telemetry of one step as sensor_msgs/JointState: ``name`` the dictionary's keys,
     ``position`` the values in the dictionary's units (:mod:`cikan_ros.telemetry`; NaN where a
-    constraint is not evaluated). ``into``: the message of a previous step with the same keys,
-    refilled (a stream of steps builds one message)."""
-    msg = JointState(name=list(keys)) if into is None else into
+    constraint is not evaluated). The simulator sends it serialised
+    (:class:`cikan_ros.ros.cdr.TelemetryCdr`, the same bytes)."""
+    msg = JointState(name=list(keys))
     msg.header.stamp = ns_to_time(stamp_ns)
     msg.position = np.asarray(values, dtype=float).tolist()
     return msg
@@ -346,7 +340,8 @@ def markers_msg(shapes: list[Shape], stamp_ns: int) -> MarkerArray:
 class MarkerStream:
     """:func:`markers_msg` for a stream of scenes: each marker (``ns``/``id``) is made once and
     then restamped and moved, and a path's points are made once (a Marker message takes ~0.1 ms
-    to build, a Point ~5 us; the simulator publishes markers every step)."""
+    to build, a Point ~5 us): the simulator's path and constraints (its moving bodies, every
+    step, go out serialised: :class:`cikan_ros.ros.cdr.MarkersCdr`)."""
 
     def __init__(self) -> None:
         self.markers: dict[tuple[str, int], tuple[Marker, tuple[NDArray, list[Point]]]] = {}

@@ -24,7 +24,7 @@ from ..scene import SceneBuilder, port_axis_kernel, relative_lvlh_kernel
 from ..telemetry import P_LVLH, keys, values_kernel
 from ..units import KM
 from ..tsg import ChiefAnchor, Predictor
-from . import convert as cv
+from . import cdr, convert as cv
 from .convert import Timeline
 from .graph_spec import SCENE_CONSTRAINTS, SCENE_MARKERS, SCENE_PATH, SCENE_TOPICS, TELEMETRY
 
@@ -39,7 +39,8 @@ class SceneStream:
         every = round(cfg.tsg.update_period_s / cfg.control.period_s)
         self.scene = SceneBuilder(cfg, path_every=every)
         self.markers = cv.MarkerStream()
-        self.telemetry: Any = None
+        self.bodies = cdr.MarkersCdr()
+        self.telemetry = cdr.TelemetryCdr(self.keys)
         # The compiled kernels are called on one-row buffers: a step costs no array wrapping.
         self.cparams = constraint_params(cfg.constraints, cfg.thrust_limit_kmps2, cfg.side)
         self.side = float(cfg.side)
@@ -50,19 +51,20 @@ class SceneStream:
     def step(self, k: int, stamp_ns: int, t: float, x_c: NDArray, x_d: NDArray, u: NDArray, tau: float,
              last: bool = False) -> list[tuple[str, Any]]:
         """(topic, message) pairs of step k at time t (s since the epoch; tau NaN: no shift yet,
-        no virtual target); ``last``: the mission's last step (the path ends at it). The messages
-        are reused from step to step: publish or serialise them before the next call."""
+        no virtual target); ``last``: the mission's last step (the path ends at it). The telemetry
+        and the moving bodies come serialised (bytes, :mod:`cikan_ros.ros.cdr`: they go out every
+        step), the path and the constraints as messages, which are reused from step to step:
+        publish or serialise them before the next call."""
         self.x_c[0], self.x_d[0], self.u[0], self.tau[0] = x_c, x_d, u, tau
         values_kernel(self.x_c, self.x_d, self.u, self.tau, self.cparams, self.row)
-        self.telemetry = cv.telemetry_msg(self.keys, self.row[0], stamp_ns, self.telemetry)
-        out: list[tuple[str, Any]] = [(TELEMETRY, self.telemetry)]
+        out: list[tuple[str, Any]] = [(TELEMETRY, self.telemetry(self.row[0], stamp_ns))]
         p_d = self.row[0, P_LVLH] / KM
         p_v = None
         if not math.isnan(tau):
             self.x_v[0] = self.anchor(x_c, t).orbit.state(t + tau)
             relative_lvlh_kernel(self.x_v, self.x_c, self.rel)
             p_v = self.rel[0, :3].copy()
-        out.append((SCENE_MARKERS, self.markers(self.scene.moving(p_d, p_v), stamp_ns)))
+        out.append((SCENE_MARKERS, self.bodies(self.scene.moving(p_d, p_v), stamp_ns)))
         trail = self.scene.trail(k, p_d, last)
         if trail is not None:
             out.append((SCENE_PATH, self.markers([trail], stamp_ns)))
@@ -83,7 +85,6 @@ def add_scene(src: str | Path, dst: str | Path) -> dict[str, int]:
     bag that cannot be read or lacks the states or the shifts."""
     import yaml
     from mcap.reader import make_reader
-    from rosbags.typesys import Stores, get_typestore
 
     from ..telemetry import dictionary, to_json
     from .bag_reader import bag_config, bag_custom_data, bag_governor, mission_from_bag
@@ -101,7 +102,6 @@ def add_scene(src: str | Path, dst: str | Path) -> dict[str, int]:
         raise CikanError(f"cannot read bag {src}: {exc}") from None
     tl = Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
     stream = SceneStream(cfg, Predictor.from_config(cfg))
-    store = get_typestore(Stores.ROS2_JAZZY)
     n = len(run.t)
 
     def scene() -> Iterator[tuple[int, str, bytes]]:
@@ -109,7 +109,7 @@ def add_scene(src: str | Path, dst: str | Path) -> dict[str, int]:
             stamp = tl.stamp_ns(k)
             for topic, msg in stream.step(k, stamp, float(run.t[k]), run.x_c[k], run.x_d[k], run.u[k],
                                           float(run.tau[k]), last=k == n - 1):
-                yield stamp, topic, bytes(store.serialize_cdr(_rosbags_message(msg, store), TOPIC_TYPES[topic]))
+                yield stamp, topic, msg if isinstance(msg, bytes) else cdr.exact_cdr(msg, TOPIC_TYPES[topic])
 
     custom.pop(TELEMETRY_CUSTOM_KEY, None)
     with BagWriter(dst, custom_data=custom) as bag, mcap_file.open("rb") as f:
@@ -128,27 +128,3 @@ def add_scene(src: str | Path, dst: str | Path) -> dict[str, int]:
                     bag.add_topic(topic, schema.name, yaml.safe_load(qos) if qos else [])
             bag.write(topic, data, log_time)
         return dict(bag.counts)
-
-
-def _rosbags_message(msg: Any, store: Any) -> Any:
-    """The rosbags message equal to an rclpy message (field by field), for rosbags' CDR
-    serialiser: rclpy's ``serialize_message`` pads some messages (JointState, MarkerArray) with
-    bytes that rosbags refuses ("CDR message size mismatch"), unlike the bytes a publisher sends."""
-    import numpy as np
-
-    cls = store.types[msg.__class__.__module__.split(".")[0] + "/msg/" + msg.__class__.__name__]
-    fields = {}
-    for name, kind in msg.get_fields_and_field_types().items():
-        value = getattr(msg, name)
-        if hasattr(value, "get_fields_and_field_types"):
-            fields[name] = _rosbags_message(value, store)
-        elif kind.startswith("sequence<") and kind[9:-1] in ("double", "float", "int32", "uint32", "uint8"):
-            fields[name] = np.asarray(value, dtype={"double": np.float64, "float": np.float32, "int32": np.int32,
-                                                    "uint32": np.uint32, "uint8": np.uint8}[kind[9:-1]])
-        elif isinstance(value, list) and value and hasattr(value[0], "get_fields_and_field_types"):
-            fields[name] = [_rosbags_message(v, store) for v in value]
-        elif isinstance(value, list):
-            fields[name] = list(value)
-        else:
-            fields[name] = value
-    return cls(**fields)
