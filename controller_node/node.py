@@ -5,7 +5,8 @@ u = sat(-K(nu_v)(x_d - x_v)) with x_v the measured chief propagated by tau (the 
 ``ClosedLoop.command``, which anchors the chief on the state it receives) and publishes
 /deputy/accel_cmd (AccelStamped, m/s^2, ECI) stamped t_k.
 
-If the shift of a step does not come within ``controller.tau_deadline_s`` (wall), the controller
+If the shift of a step does not come within ``controller.tau_deadline_s`` (wall; checked at a
+quarter of it, :class:`~cikan_ros.ros.graph.WaitDeadline`), the controller
 holds the last verified shift (still feasible by recursive feasibility), reports it in
 /diagnostics, and from then on waits only ``controller.lost_deadline_s`` per step until the
 governor answers again. Without any verified shift it sends no command (the simulator then
@@ -14,13 +15,11 @@ applies zero thrust). Non-finite, off-grid, positive or stale inputs are rejecte
 
 from __future__ import annotations
 
-import time
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import AccelStamped
 from nav_msgs.msg import Odometry
-from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from sensor_msgs.msg import TimeReference
 
@@ -28,7 +27,7 @@ from cikan_ros.ancillary import OFFLINE_ONLY as ANCILLARY_OFFLINE_ONLY
 from cikan_ros.errors import ConfigError
 from cikan_ros.mission import ClosedLoop
 from cikan_ros.ros import cdr, convert as cv
-from cikan_ros.ros.graph import QOS_STREAM, Readiness, qos_for, run_node
+from cikan_ros.ros.graph import QOS_STREAM, Readiness, WaitDeadline, qos_for, run_node
 from cikan_ros.ros.graph_spec import (PATH_HOLD, ACCEL_CMD, CHIEF_ODOM, DEPUTY_ODOM, DIAGNOSTICS, TIME_SHIFT,
                                       required_publishers, required_readers)
 from cikan_ros.ros.params import NodeSpec, declare_config, declare_parameters
@@ -61,14 +60,11 @@ class ControllerNode(Node):
         self.tau: float | None = None     # last verified shift (s)
         self.last_stamp = -1              # last step answered
         self.waiting: int | None = None   # step whose shift is awaited
-        self.lost = False
         self.pending: dict[int, dict[str, Any]] = {}
         self.pub_accel = self.readiness.publisher(AccelStamped, ACCEL_CMD, QOS_STREAM)
         self.accel_out = cdr.AccelCdr()  # the publisher's own message, serialised and refilled in place
         self.pub_diag = self.readiness.publisher(DiagnosticArray, DIAGNOSTICS, qos_for(DIAGNOSTICS))
-        steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self.deadline = self.create_timer(deadline, self.on_deadline, clock=steady, autostart=False)
-        self.lost_deadline = self.create_timer(lost, self.on_deadline, clock=steady, autostart=False)
+        self.wait = WaitDeadline(self, deadline, lost, self.on_deadline)
         # Raw: the states and the shift are read from their CDR bytes (cikan_ros.ros.cdr), not
         # deserialised whole.
         subs = [self.readiness.subscription(Odometry, DEPUTY_ODOM, self.on_deputy, QOS_STREAM, raw=True),
@@ -127,7 +123,7 @@ class ControllerNode(Node):
         except cv.MessageError as exc:
             self.reject(f"time shift rejected: {exc}", self.stamp_or_last(stamp))
             return
-        self.lost = False  # the governor is alive: wait for it again
+        self.wait.heard()  # the governor is alive: wait for it again
         if stamp <= self.last_stamp:
             self.reject(f"stale time shift stamped {stamp} ns rejected (late governor)", stamp)
             return
@@ -142,20 +138,13 @@ class ControllerNode(Node):
             self.command(stamp, entry["x"], entry["xc"], *entry["tau"])
         elif self.waiting != stamp:
             self.waiting = stamp
-            self.waiting_since = time.perf_counter()
-            self.wait_timer = self.lost_deadline if self.lost else self.deadline
-            self.wait_timer.reset()
+            self.wait.start()
 
     def on_deadline(self) -> None:
-        waited = time.perf_counter() - self.waiting_since
-        if self.waiting is None or waited < self.wait_timer.timer_period_ns / 1e9:
-            return  # not waiting, or a stale expiry (a loaded executor may deliver one late)
-        self.deadline.cancel()
-        self.lost_deadline.cancel()
+        """No shift came within the deadline (:class:`WaitDeadline`): hold the last verified one."""
         stamp, self.waiting = self.waiting, None
-        if stamp <= self.last_stamp:
+        if stamp is None or stamp <= self.last_stamp:
             return
-        self.lost = True
         if self.tau is None:
             self.diag("error", "no verified time shift yet: no command", stamp, {"event": "no-shift"})
             return
@@ -166,8 +155,7 @@ class ControllerNode(Node):
 
     def command(self, stamp: int, x_d: Any, x_c: Any, tau: float, source: str) -> None:
         """u toward x_v = x_c(t_k + tau) (x_c the measured chief), published stamped t_k."""
-        self.deadline.cancel()
-        self.lost_deadline.cancel()
+        self.wait.stop()
         self.waiting = None
         u = self.loop.command(self.timeline.step(stamp), tau, x_d, x_c)
         self.pub_accel.publish(self.accel_out(u, stamp))

@@ -10,8 +10,8 @@ controller work on those, log step k: the acceleration as applied (/truth/deputy
 constraint margins on the truth, the applied thrust and the truth states violating h1 or h3 at
 the plant's substeps strictly between t_k and t_{k+1} (``between_violations``: the substeps are
 not recorded) in /diagnostics. (The bag is a sim-time record: every message of step k is
-stamped t_k, whatever the order it was sent in.) A command that does not come within ``sim.command_deadline_s`` (wall) is
-replaced by zero thrust and reported; after one miss the sim waits only ``sim.lost_deadline_s``
+stamped t_k, whatever the order it was sent in.) A command that does not come within ``sim.command_deadline_s`` (wall; checked at a quarter of it,
+:class:`~cikan_ros.ros.graph.WaitDeadline`) is replaced by zero thrust and reported; after one miss the sim waits only ``sim.lost_deadline_s``
 per step until the controller answers again. Non-finite, out-of-range, off-grid or stale
 commands are rejected with a diagnostic. The process ends after T_sim (or docking, with
 ``sim.stop_on_dock``) with a summary diagnostic (steps, wall time, real-time factor, step latency).
@@ -42,7 +42,7 @@ from visualization_msgs.msg import MarkerArray
 from cikan_ros.constraints import margins
 from cikan_ros.mission import ClosedLoop, StepJudge, nominal_start, sample_start
 from cikan_ros.ros import cdr, convert as cv
-from cikan_ros.ros.graph import QOS_STREAM, PeerWatch, Readiness, qos_for, run_node
+from cikan_ros.ros.graph import QOS_STREAM, PeerWatch, Readiness, WaitDeadline, qos_for, run_node
 from cikan_ros.ros.graph_spec import (ACCEL_CMD, CHIEF_ODOM, CLOCK, DEPUTY_ODOM, DIAGNOSTICS, SCENE_CONSTRAINTS,
                                       SCENE_MARKERS, SCENE_PATH, TELEMETRY, TIME_SHIFT, TRUTH_ACCEL,
                                       TRUTH_CHIEF, TRUTH_DEPUTY, required_publishers, required_readers)
@@ -81,8 +81,6 @@ class SimNode(Node):
         self.judge = StepJudge(cfg, self.u_limit)
         self.k = 0
         self.x_c = np.zeros(6)
-        self.waiting = False
-        self.lost = False
         self.misses = 0
         self.rejected = 0
         self.latency_ms: list[float] = []
@@ -112,10 +110,8 @@ class SimNode(Node):
         self.shifts: dict[int, float] = {}      # stamp -> tau (s) of the shifts not yet used
         self.steps: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []  # (k, x_c, x_d, u) awaiting a shift
         self.tau_held = float("nan")
-        self.steady = steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self.deadline = self.create_timer(self.deadline_s, self.on_deadline, clock=steady, autostart=False)
-        self.lost_deadline = self.create_timer(self.lost_deadline_s, self.on_deadline, clock=steady,
-                                               autostart=False)
+        self.steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.wait = WaitDeadline(self, self.deadline_s, self.lost_deadline_s, self.on_deadline)
         waits = [(p, required_readers(t, peers)) for p, t in
                  ((self.pub_deputy, DEPUTY_ODOM), (self.pub_chief, CHIEF_ODOM), (self.pub_clock, CLOCK),
                   (self.pub_diag, DIAGNOSTICS), (self.pub_truth_chief, TRUTH_CHIEF),
@@ -167,9 +163,7 @@ class SimNode(Node):
         self.pub_truth_deputy.publish(states["truth_deputy"](self.x, stamp))
         if self.loop.finished(self.k, self.x, self.x_c, self.stop_on_dock):
             return True
-        self.waiting = True
-        self.wait_timer = self.lost_deadline if self.lost else self.deadline
-        self.wait_timer.reset()
+        self.wait.start(self.t_published)
         return False
 
     def on_accel(self, data: bytes) -> None:
@@ -179,8 +173,8 @@ class SimNode(Node):
         except cv.MessageError as exc:
             self.reject(f"command rejected: {exc}", self.stamp())
             return
-        if not self.waiting or stamp != self.stamp():
-            self.lost = False  # the controller is alive again; its next answer will be awaited
+        if not self.wait.waiting or stamp != self.stamp():
+            self.wait.heard()  # the controller is alive again; its next answer will be awaited
             self.reject(f"stale command stamped {stamp} ns (expected {self.stamp()} ns)", stamp)
             return
         try:
@@ -188,17 +182,12 @@ class SimNode(Node):
         except cv.MessageError as exc:
             self.reject(f"command rejected: {exc}", stamp)
             return
-        self.lost = False
+        self.wait.heard()
         self.apply(u, "command")
 
     def on_deadline(self) -> None:
-        waited = time.perf_counter() - self.t_published
-        if not self.waiting or waited < self.wait_timer.timer_period_ns / 1e9:
-            return  # not waiting, or a stale expiry (a loaded executor may deliver one late)
-        self.deadline.cancel()
-        self.lost_deadline.cancel()
+        """No command came within the deadline (:class:`WaitDeadline`): zero thrust."""
         self.misses += 1
-        self.lost = True
         self.get_logger().warning(f"no command for t_k = {self.stamp()} ns: zero thrust")
         self.apply(np.zeros(3), "zero-deadline")
 
@@ -212,9 +201,7 @@ class SimNode(Node):
         """Integrate step k with the applied thrust u (km/s^2) to k+1 and publish the states of
         k+1; then, while the governor and the controller work on them, log step k: the thrust as
         applied, its margins and the violations between the samples, its telemetry and scene."""
-        self.deadline.cancel()
-        self.lost_deadline.cancel()
-        self.waiting = False
+        self.wait.stop()
         ms = (time.perf_counter() - self.t_published) * 1e3
         k, x_c, x = self.k, self.x_c, self.x
         if source == "command":

@@ -347,6 +347,58 @@ def test_parameters_declared_with_descriptions_and_validated(ros_env: int) -> No
         rclpy.try_shutdown(context=ctx)
 
 
+def test_a_wait_deadline_fires_once_per_missed_wait_and_then_keeps_the_lost_pace(ros_env: int) -> None:
+    """WaitDeadline (the simulator's and the controller's deadlines, checked by free-running
+    timers): a wait that is never answered misses once, no sooner than its deadline; the next
+    wait, the peer presumed gone, misses no sooner than the lost deadline; a wait that is stopped
+    never misses; :meth:`heard` gives the full deadline back. Judged by the order of events and
+    lower bounds of time only."""
+    import time
+
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.task import Future
+
+    from cikan_ros.ros.graph import WaitDeadline, make_executor
+
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=ros_env)
+    try:
+        node = rclpy.create_node("deadline", context=ctx)
+        executor = make_executor(ctx)
+        executor.add_node(node)
+        misses: list[tuple[float, bool]] = []
+        done = Future()
+
+        def on_miss() -> None:
+            misses.append((time.perf_counter(), wait.lost))
+            if len(misses) == 1:
+                wait.start()      # the next step's wait, with the peer presumed gone
+            else:
+                done.set_result(True)
+
+        wait = WaitDeadline(node, 0.2, 0.04, on_miss)
+        t0 = time.perf_counter()
+        wait.start(t0)
+        executor.spin_until_future_complete(done, timeout_sec=60.0)
+        assert done.done() and len(misses) == 2 and not wait.waiting
+        (t1, lost1), (t2, lost2) = misses
+        assert t1 - t0 >= 0.2 and t2 - t1 >= 0.04 and lost1 and lost2
+        wait.heard()
+        assert not wait.lost and wait.deadline_s == 0.2
+        # a wait answered in time (stopped) never misses, however long the executor runs
+        wait.start()
+        wait.stop()
+        later = Future()
+        node.create_timer(0.6, lambda: later.set_result(True))
+        executor.spin_until_future_complete(later, timeout_sec=60.0)
+        assert len(misses) == 2
+        executor.shutdown()
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
 def test_odometry_carries_the_state_covariance_in_si() -> None:
     """The navigation covariance (km^2, km^2/s^2) goes out as m^2 and m^2/s^2 in the position
     block of pose.covariance and the linear block of twist.covariance, and comes back."""
