@@ -143,20 +143,17 @@ class _Refilled:
     """A publisher's serialised message (little-endian CDR, the bytes rclpy's ``serialize_message``
     gives for ``msg``, which starts with a Time and ``strings`` strings and goes on with doubles),
     refilled in place step after step and published raw: converting the Python message to C at
-    each publish costs rclpy more than the rest of the publish."""
+    each publish costs rclpy more than the rest of the publish. ``doubles`` views the doubles."""
 
     def __init__(self, msg: Any, strings: int) -> None:
         self.buf = bytearray(serialize_message(msg))
-        end, self.pos = _doubles_at(self.buf, strings)
+        end, pos = _doubles_at(self.buf, strings)
         # The alignment padding before the doubles: zeros (rclpy leaves whatever was in memory).
-        self.buf[end:self.pos] = bytes(self.pos - end)
+        self.buf[end:pos] = bytes(pos - end)
+        self.doubles = np.frombuffer(self.buf, dtype="<f8", count=(len(self.buf) - pos) // 8, offset=pos)
 
     def _stamp(self, stamp_ns: int) -> None:
         _TIME.pack_into(self.buf, 4, *divmod(int(stamp_ns), NS_PER_S))
-
-    def _vec3(self, index: int, values: Any) -> None:
-        """Three doubles from the ``index``-th double on."""
-        _VEC3.pack_into(self.buf, self.pos + 8 * index, *values)
 
 
 class OdometryCdr(_Refilled):
@@ -166,6 +163,11 @@ class OdometryCdr(_Refilled):
     def __init__(self, child_frame: str, covariance: bool) -> None:
         super().__init__(odom_msg(np.zeros(6), 0, child_frame, np.zeros((6, 6)) if covariance else None), 2)
         self.covariance = covariance
+        d = self.doubles
+        self.position, self.velocity = d[:3], d[_ODOM_TWIST:_ODOM_TWIST + 3]
+        # the position block of pose.covariance, the linear-velocity block of twist.covariance (6 x 6, row-major)
+        self.pose_cov = d[_ODOM_POSE_COV:_ODOM_POSE_COV + 36].reshape(6, 6)[:3, :3]
+        self.twist_cov = d[_ODOM_TWIST_COV:_ODOM_TWIST_COV + 36].reshape(6, 6)[:3, :3]
 
     def __call__(self, x_km: ArrayLike, stamp_ns: int, cov_km: ArrayLike | None = None) -> bytes:
         """The bytes of ``odom_msg(x_km, stamp_ns, child_frame, cov_km)``."""
@@ -173,13 +175,12 @@ class OdometryCdr(_Refilled):
             raise ValueError(f"this topic's odometry {'carries' if self.covariance else 'has no'} covariance")
         self._stamp(stamp_ns)
         x_m = km_to_m(x_km)
-        self._vec3(0, x_m[:3])
-        self._vec3(_ODOM_TWIST, x_m[3:])
+        self.position[:] = x_m[:3]
+        self.velocity[:] = x_m[3:]
         if cov_km is not None:
             cov = np.asarray(cov_km, dtype=float) * 1e6  # km^2 -> m^2
-            for i in range(3):   # row i of the position block; of the linear-velocity block
-                self._vec3(_ODOM_POSE_COV + 6 * i, cov[i, :3])
-                self._vec3(_ODOM_TWIST_COV + 6 * i, cov[3 + i, 3:])
+            self.pose_cov[:] = cov[:3, :3]
+            self.twist_cov[:] = cov[3:, 3:]
         return bytes(self.buf)
 
 
@@ -189,11 +190,12 @@ class AccelCdr(_Refilled):
 
     def __init__(self) -> None:
         super().__init__(accel_msg(np.zeros(3), 0), 1)
+        self.linear = self.doubles[:3]
 
     def __call__(self, u_kmps2: ArrayLike, stamp_ns: int) -> bytes:
         """The bytes of ``accel_msg(u_kmps2, stamp_ns)``."""
         self._stamp(stamp_ns)
-        self._vec3(0, km_to_m(u_kmps2))
+        self.linear[:] = km_to_m(u_kmps2)
         return bytes(self.buf)
 
 
