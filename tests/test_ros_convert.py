@@ -203,13 +203,17 @@ def test_scene_and_telemetry_messages() -> None:
     assert cone.type == Marker.TRIANGLE_LIST and len(cone.points) % 3 == 0
     assert sphere.scale.x == pytest.approx(2 * cfg.constraints.gamma1_km * 1e3)
     assert port.type == Marker.ARROW and len(port.points) == 2
-    # the simulator's reusing maker gives the same messages as fresh ones, a growing path included
-    stream = cv.MarkerStream()
+    # the simulator's serialised scene is the bytes of fresh messages, step after step: a growing
+    # path, the bodies before and after the first shift, the constraints as the axis turns
+    stream = cdr.MarkersCdr()
     for k in range(13):
         shapes = builder.moving(np.array([k, 1.0, 2.0]), np.array([0.0, -k, 0.0]) if k else None)
         trail = builder.trail(k, np.array([1.0 + k, 2.0 * k, 0.5]), last=k == 12)
         shapes += [trail] if trail is not None else []
-        assert stream(shapes, 100 + k) == cv.markers_msg(shapes, 100 + k)
+        turned = builder.constraints(port_axis_lvlh(X, Side.BEHIND)[0] + [0.0, 0.02 * k, 0.0], force=True)
+        for group in (shapes, turned):
+            assert stream(group, 100 + k) == cdr.exact_cdr(cv.markers_msg(group, 100 + k),
+                                                           "visualization_msgs/msg/MarkerArray")
     # a step of the simulator's stream: the target where the scene's geometry puts it
     from cikan_ros.ros.scene_stream import SceneStream
     from cikan_ros.scene import virtual_target_lvlh
@@ -440,7 +444,7 @@ def test_a_reused_message_serialises_as_a_fresh_one():
 
 def test_messages_written_whole_are_the_bytes_of_the_messages() -> None:
     """What the nodes publish every step, written straight to CDR (clock, time shift, diagnostic,
-    telemetry, moving bodies), is byte for byte rosbags' serialisation of the message convert
+    telemetry, moving bodies, path), is byte for byte rosbags' serialisation of the message convert
     builds (the bytes a publisher sends, which rosbags reads), and rclpy reads it back as that
     message; the templates refilled step after step stay so."""
     rng = np.random.default_rng(5)
@@ -478,10 +482,18 @@ def test_messages_written_whole_are_the_bytes_of_the_messages() -> None:
             assert data == cdr.exact_cdr(fresh, "visualization_msgs/msg/MarkerArray")
             # (ColorRGBA is float32 on the wire: compared after rclpy's own round trip)
             assert deserialize_message(data, MarkerArray) == deserialize_message(serialize_message(fresh), MarkerArray)
-    sphere = [Shape("dot", 1, "sphere", np.array([[1.0, 2.0, 3.0]]), 0.5, (1.0, 0.0, 0.0, 1.0))]
-    assert bodies(sphere, 9) == cdr.exact_cdr(cv.markers_msg(sphere, 9), "visualization_msgs/msg/MarkerArray")
-    with pytest.raises(ValueError, match="line_strip"):
-        bodies([builder.trail(0, np.ones(3))], 9)
+    # a path of any length, a sphere, several markers in one array: the points spliced between
+    # the fixed parts of one layout's template
+    sphere = Shape("dot", 1, "sphere", np.array([[1.0, 2.0, 3.0]]), 0.5, (1.0, 0.0, 0.0, 1.0))
+    for n in (1, 2, 7, 240):
+        path = Shape("path", 0, "line_strip", rng.normal(size=(n, 3)) * 50.0, 0.3, (0.1, 0.2, 0.3, 1.0))
+        for shapes in ([path], [path, sphere, *builder.moving(np.ones(3), -np.ones(3)), path]):
+            assert bodies(shapes, 9 + n) == cdr.exact_cdr(cv.markers_msg(shapes, 9 + n),
+                                                          "visualization_msgs/msg/MarkerArray")
+    with pytest.raises(ValueError, match="cube"):
+        bodies([Shape("box", 0, "cube", np.zeros((1, 3)), 0.3, (0.1, 0.2, 0.3, 1.0))], 9)
+    with pytest.raises(ValueError, match="at least one point"):
+        bodies([Shape("path", 0, "line_strip", np.empty((0, 3)), 0.3, (0.1, 0.2, 0.3, 1.0))], 9)
     with pytest.raises(cv.MessageError, match="nanoseconds"):
         cdr.time_shift_cdr(5, 0.1 + 1e-12, "bisect")
 

@@ -6,7 +6,7 @@ and the stamp the recorder logs a message at.
 Written every step, published raw: the states and the thrust (:class:`OdometryCdr`,
 :class:`AccelCdr`, refilled in place), the clock (:func:`clock_cdr`), the time shift
 (:func:`time_shift_cdr`), the per-step diagnostic (:func:`diagnostic_cdr`), the telemetry
-(:class:`TelemetryCdr`) and the scene's moving bodies (:class:`MarkersCdr`). Each gives the bytes a
+(:class:`TelemetryCdr`) and the scene's moving bodies and path (:class:`MarkersCdr`). Each gives the bytes a
 publisher sends for the message :mod:`cikan_ros.ros.convert` builds (tested field by field against
 rclpy's deserialiser and byte for byte against rosbags' serialiser).
 
@@ -365,47 +365,119 @@ class TelemetryCdr:
         return bytes(self.template.buf)
 
 
-#: The shapes :class:`MarkersCdr` refills: a sphere (its centre is the marker's pose) and a
-#: sphere list (its points); both are scaled by their size in all three axes.
-REFILLED_KINDS = ("sphere", "sphere_list")
+#: The shapes :class:`MarkersCdr` writes (every kind of :mod:`cikan_ros.scene`), with the factors
+#: of their size in the marker's scale (``convert.marker_msg``): a sphere (its centre is the
+#: marker's pose), a sphere list, a line strip (its width), a triangle list (scale 1) and an arrow.
+SCALE_FACTORS = {"sphere": (1.0, 1.0, 1.0), "sphere_list": (1.0, 1.0, 1.0), "line_strip": (1.0,),
+                 "triangle_list": (), "arrow": (1.0, 2.0, 3.0)}
+REFILLED_KINDS = tuple(SCALE_FACTORS)
+
+
+class _MarkerLayout:
+    """The serialised MarkerArray of one layout of shapes, cut at each marker's points: fixed
+    segments (refilled in place: stamps, scales, a sphere's centre) between which the points are
+    spliced. A Point is 24 bytes, so whatever follows a marker's points keeps its alignment
+    whatever their number (at least one)."""
+
+    def __init__(self, shapes: Sequence[Shape]) -> None:
+        marked, marks = [], []
+        for i, s in enumerate(shapes):
+            n = 1 if s.kind == "sphere" else max(1, len(s.points))
+            size, pts = _sentinels(1, 700 + 4 * i), _sentinels(3 * n, 702 + 4 * i)
+            marked.append(Shape(s.ns, s.ident, s.kind, pts.reshape(n, 3), float(size[0]), s.color, s.colors))
+            marks.append((float(size[0]) * 1e3, km_to_m(pts).astype("<f8").tobytes()))
+        whole = _Template(markers_msg(marked, _STAMP_SENTINEL_NS), "visualization_msgs/msg/MarkerArray")
+        buf = bytes(whole.buf)
+        self.kinds = [s.kind for s in shapes]
+        cuts: list[tuple[int, int]] = []          # (where the points begin, their length) per spliced marker
+        centres: dict[int, int] = {}              # a sphere's pose.position (absolute offset)
+        self.scales: list[tuple[int, int]] = []   # (absolute offset, how many doubles) of each marker's scale
+        for i, (s, (size, pts)) in enumerate(zip(shapes, marks)):
+            factors = np.array(SCALE_FACTORS[s.kind])
+            self.scales.append((buf.find((size * factors).astype("<f8").tobytes()) if len(factors) else 0,
+                                len(factors)))
+            at = buf.find(pts)
+            if at < 0 or self.scales[-1][0] < 0:
+                raise ValueError("a marker template's sentinel values are not where they should be")
+            if s.kind == "sphere":
+                centres[i] = at
+            else:
+                cuts.append((at, len(pts)))
+        # Fixed segments: before the first spliced points, between them, after the last.
+        bounds, pos = [], 0
+        for at, length in cuts:
+            bounds.append((pos, at))
+            pos = at + length
+        bounds.append((pos, len(buf)))
+        self.segments = [bytearray(buf[a:b]) for a, b in bounds]
+
+        def locate(offset: int) -> tuple[int, int]:
+            for i, (a, b) in enumerate(bounds):
+                if a <= offset < b:
+                    return i, offset - a
+            raise ValueError("a refilled field lies in spliced points")
+
+        self.stamps = [locate(at) for at in whole.stamps]
+        self.scale_views = [self._view(*locate(at), n) if n else None for at, n in self.scales]
+        self.factors = [np.array(SCALE_FACTORS[s.kind]) for s in shapes]
+        # A sphere's centre (its pose.position, 3 doubles) is refilled; spliced points are not.
+        self.centres = {i: self._view(*locate(at), 3) for i, at in centres.items()}
+        # The uint32 count of each spliced marker's points: the last 4-aligned word before them
+        # holding the template's count (alignment padding may lie between).
+        self.counts = []
+        for at, length in cuts:
+            seg, off = locate(at - 1)
+            off += 1
+            word = off - 4 if _LENGTH.unpack_from(self.segments[seg], off - 4)[0] == length // 24 else off - 8
+            if _LENGTH.unpack_from(self.segments[seg], word)[0] != length // 24:
+                raise ValueError("a marker template's point count is not where it should be")
+            self.counts.append((seg, word))
+
+    def _view(self, seg: int, offset: int, n: int) -> NDArray:
+        return np.frombuffer(self.segments[seg], dtype="<f8", count=n, offset=offset)
+
+    def __call__(self, shapes: Sequence[Shape], stamp_ns: int) -> bytes:
+        sec_nsec = divmod(int(stamp_ns), NS_PER_S)
+        for seg, off in self.stamps:
+            _TIME.pack_into(self.segments[seg], off, *sec_nsec)
+        parts: list[bytes | bytearray] = [self.segments[0]]
+        spliced = 0
+        for i, shape in enumerate(shapes):
+            if self.scale_views[i] is not None:
+                self.scale_views[i][:] = float(shape.size) * 1e3 * self.factors[i]
+            pts = km_to_m(np.asarray(shape.points, dtype=float))
+            if shape.kind == "sphere":
+                self.centres[i][:] = pts[0]
+                continue
+            if len(pts) == 0:
+                raise ValueError(f"MarkersCdr writes {shape.kind} shapes of at least one point")
+            seg, word = self.counts[spliced]
+            _LENGTH.pack_into(self.segments[seg], word, len(pts))
+            spliced += 1
+            parts.append(pts.astype("<f8", copy=False).tobytes())
+            parts.append(self.segments[spliced])
+        return b"".join(parts)
 
 
 class MarkersCdr:
     """The bytes of ``convert.markers_msg(shapes, stamp_ns)`` (visualization_msgs/MarkerArray)
-    for shapes of :data:`REFILLED_KINDS` whose layout repeats (the same names, kinds, colours
-    and numbers of points: one template per layout, made on first use), their points and sizes
-    refilled in place: the simulator's moving bodies, every step."""
+    for shapes of :data:`REFILLED_KINDS` (one layout per list of names, kinds and colours, made
+    on first use by :class:`_MarkerLayout`; any number of points): the simulator's scene, its
+    moving bodies every step, its path every governor update period and its constraints."""
 
     def __init__(self) -> None:
-        self.templates: dict[tuple, tuple[_Template, list[tuple[NDArray, NDArray]]]] = {}
+        self.layouts: dict[tuple, _MarkerLayout] = {}
 
     @staticmethod
     def layout(shapes: Sequence[Shape]) -> tuple:
-        return tuple((s.ns, int(s.ident), s.kind, len(s.points), s.color, tuple(s.colors)) for s in shapes)
+        return tuple((s.ns, int(s.ident), s.kind, s.color, tuple(s.colors)) for s in shapes)
 
     def __call__(self, shapes: Sequence[Shape], stamp_ns: int) -> bytes:
-        key = self.layout(shapes)
-        made = self.templates.get(key)
-        if made is None:
-            made = self.templates[key] = self._template(shapes)
-        template, fields = made
-        template.stamp(stamp_ns)
-        for shape, (scale, points) in zip(shapes, fields):
-            scale[:] = float(shape.size) * 1e3
-            points[:] = km_to_m(np.asarray(shape.points, dtype=float)[:1] if shape.kind == "sphere"
-                                else shape.points).ravel()
-        return bytes(template.buf)
-
-    @staticmethod
-    def _template(shapes: Sequence[Shape]) -> tuple[_Template, list[tuple[NDArray, NDArray]]]:
         bad = [s.kind for s in shapes if s.kind not in REFILLED_KINDS]
         if bad:
-            raise ValueError(f"MarkersCdr refills {', '.join(REFILLED_KINDS)} shapes, not {bad[0]}")
-        marked, marks = [], []
-        for i, s in enumerate(shapes):
-            n = 1 if s.kind == "sphere" else len(s.points)
-            size, pts = _sentinels(1, 700 + 4 * i), _sentinels(3 * n, 702 + 4 * i)
-            marked.append(Shape(s.ns, s.ident, s.kind, pts.reshape(n, 3), float(size[0]), s.color, s.colors))
-            marks.append((np.repeat(float(size[0]) * 1e3, 3), km_to_m(pts)))
-        template = _Template(markers_msg(marked, _STAMP_SENTINEL_NS), "visualization_msgs/msg/MarkerArray")
-        return template, [(template.doubles(scale), template.doubles(points)) for scale, points in marks]
+            raise ValueError(f"MarkersCdr writes {', '.join(REFILLED_KINDS)} shapes, not {bad[0]}")
+        key = self.layout(shapes)
+        made = self.layouts.get(key)
+        if made is None:
+            made = self.layouts[key] = _MarkerLayout(shapes)
+        return made(shapes, stamp_ns)

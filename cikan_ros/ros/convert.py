@@ -294,27 +294,22 @@ _MARKER_TYPES = {"sphere": Marker.SPHERE, "sphere_list": Marker.SPHERE_LIST, "li
 
 def marker_msg(shape: Shape, stamp_ns: int) -> Marker:
     """visualization_msgs/Marker (m, frame ``lvlh``) of a scene shape (km); persistent (lifetime
-    0): a later marker of the same ``ns``/``id`` replaces it."""
+    0): a later marker of the same ``ns``/``id`` replaces it. The scale is the shape's size (m)
+    times the kind's factors (:data:`cikan_ros.ros.cdr.SCALE_FACTORS`: the simulator sends its
+    scene serialised from this message, :class:`cikan_ros.ros.cdr.MarkersCdr`); a sphere's centre
+    is its pose, any other kind's points are its points."""
     m = Marker()
     m.header.frame_id = FRAME_LVLH
+    m.header.stamp = ns_to_time(stamp_ns)
     m.ns, m.id, m.type, m.action = shape.ns, int(shape.ident), _MARKER_TYPES[shape.kind], Marker.ADD
     m.pose.orientation.w = 1.0
     m.color = ColorRGBA(r=shape.color[0], g=shape.color[1], b=shape.color[2], a=shape.color[3])
-    _place(m, shape, stamp_ns, (np.empty((0, 3)), []))
-    return m
-
-
-def _place(m: Marker, shape: Shape, stamp_ns: int, made: tuple[NDArray, list[Point]]) -> tuple[NDArray, list[Point]]:
-    """Stamp ``m`` and set its position, size and points from ``shape``; ``made``: the points (m)
-    and Point messages of a previous call for this marker, reused where the shape's points begin
-    with the same ones (a growing path costs its new points only). Returns them for the next."""
-    m.header.stamp = ns_to_time(stamp_ns)
     pts = km_to_m(shape.points)
     size = float(shape.size) * 1e3
     if shape.kind == "sphere":
         m.pose.position.x, m.pose.position.y, m.pose.position.z = (float(v) for v in pts[0])
         m.scale.x = m.scale.y = m.scale.z = size
-        return made
+        return m
     if shape.kind == "arrow":
         m.scale.x, m.scale.y, m.scale.z = size, 2.0 * size, 3.0 * size
     elif shape.kind == "line_strip":
@@ -323,38 +318,11 @@ def _place(m: Marker, shape: Shape, stamp_ns: int, made: tuple[NDArray, list[Poi
         m.scale.x = m.scale.y = m.scale.z = size
     else:
         m.scale.x = m.scale.y = m.scale.z = 1.0
-    if len(m.colors) != len(shape.colors):
-        m.colors = [ColorRGBA(r=c[0], g=c[1], b=c[2], a=c[3]) for c in shape.colors]
-    old, points = made
-    keep = len(old) if len(old) <= len(pts) and np.array_equal(old, pts[:len(old)]) else 0
-    points = points[:keep] + [Point(x=float(p[0]), y=float(p[1]), z=float(p[2])) for p in pts[keep:].tolist()]
-    m.points = points
-    return pts, points
+    m.colors = [ColorRGBA(r=c[0], g=c[1], b=c[2], a=c[3]) for c in shape.colors]
+    m.points = [Point(x=float(p[0]), y=float(p[1]), z=float(p[2])) for p in pts.tolist()]
+    return m
 
 
 def markers_msg(shapes: list[Shape], stamp_ns: int) -> MarkerArray:
     """visualization_msgs/MarkerArray of scene shapes (see :func:`marker_msg`)."""
     return MarkerArray(markers=[marker_msg(s, stamp_ns) for s in shapes])
-
-
-class MarkerStream:
-    """:func:`markers_msg` for a stream of scenes: each marker (``ns``/``id``) is made once and
-    then restamped and moved, and a path's points are made once (a Marker message takes ~0.1 ms
-    to build, a Point ~5 us): the simulator's path and constraints (its moving bodies, every
-    step, go out serialised: :class:`cikan_ros.ros.cdr.MarkersCdr`)."""
-
-    def __init__(self) -> None:
-        self.markers: dict[tuple[str, int], tuple[Marker, tuple[NDArray, list[Point]]]] = {}
-
-    def __call__(self, shapes: list[Shape], stamp_ns: int) -> MarkerArray:
-        out = []
-        for shape in shapes:
-            key = (shape.ns, int(shape.ident))
-            if key in self.markers and self.markers[key][0].type == _MARKER_TYPES[shape.kind]:
-                m, made = self.markers[key]
-                self.markers[key] = (m, _place(m, shape, stamp_ns, made))
-            else:
-                m = marker_msg(shape, stamp_ns)
-                self.markers[key] = (m, (km_to_m(shape.points), list(m.points)))
-            out.append(m)
-        return MarkerArray(markers=out)

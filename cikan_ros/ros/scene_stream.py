@@ -38,8 +38,7 @@ class SceneStream:
         self.anchor = ChiefAnchor(predictor)
         every = round(cfg.tsg.update_period_s / cfg.control.period_s)
         self.scene = SceneBuilder(cfg, path_every=every)
-        self.markers = cv.MarkerStream()
-        self.bodies = cdr.MarkersCdr()
+        self.markers = cdr.MarkersCdr()
         self.telemetry = cdr.TelemetryCdr(self.keys)
         # The compiled kernels are called on one-row buffers: a step costs no array wrapping.
         self.cparams = constraint_params(cfg.constraints, cfg.thrust_limit_kmps2, cfg.side)
@@ -51,10 +50,8 @@ class SceneStream:
     def step(self, k: int, stamp_ns: int, t: float, x_c: NDArray, x_d: NDArray, u: NDArray, tau: float,
              last: bool = False) -> list[tuple[str, Any]]:
         """(topic, message) pairs of step k at time t (s since the epoch; tau NaN: no shift yet,
-        no virtual target); ``last``: the mission's last step (the path ends at it). The telemetry
-        and the moving bodies come serialised (bytes, :mod:`cikan_ros.ros.cdr`: they go out every
-        step), the path and the constraints as messages, which are reused from step to step:
-        publish or serialise them before the next call."""
+        no virtual target); ``last``: the mission's last step (the path ends at it). Each comes
+        serialised (bytes, :mod:`cikan_ros.ros.cdr`: what a publisher sends)."""
         self.x_c[0], self.x_d[0], self.u[0], self.tau[0] = x_c, x_d, u, tau
         values_kernel(self.x_c, self.x_d, self.u, self.tau, self.cparams, self.row)
         out: list[tuple[str, Any]] = [(TELEMETRY, self.telemetry(self.row[0], stamp_ns))]
@@ -64,7 +61,7 @@ class SceneStream:
             self.x_v[0] = self.anchor(x_c, t).orbit.state(t + tau)
             relative_lvlh_kernel(self.x_v, self.x_c, self.rel)
             p_v = self.rel[0, :3].copy()
-        out.append((SCENE_MARKERS, self.bodies(self.scene.moving(p_d, p_v), stamp_ns)))
+        out.append((SCENE_MARKERS, self.markers(self.scene.moving(p_d, p_v), stamp_ns)))
         trail = self.scene.trail(k, p_d, last)
         if trail is not None:
             out.append((SCENE_PATH, self.markers([trail], stamp_ns)))
@@ -109,7 +106,7 @@ def add_scene(src: str | Path, dst: str | Path) -> dict[str, int]:
             stamp = tl.stamp_ns(k)
             for topic, msg in stream.step(k, stamp, float(run.t[k]), run.x_c[k], run.x_d[k], run.u[k],
                                           float(run.tau[k]), last=k == n - 1):
-                yield stamp, topic, msg if isinstance(msg, bytes) else cdr.exact_cdr(msg, TOPIC_TYPES[topic])
+                yield stamp, topic, msg
 
     custom.pop(TELEMETRY_CUSTOM_KEY, None)
     with BagWriter(dst, custom_data=custom) as bag, mcap_file.open("rb") as f:
