@@ -82,7 +82,7 @@ def _stamped_doubles(data: bytes, strings: int, doubles: int, vectors: tuple[int
     pos = _doubles_at(data, strings)[1]
     if not 0 <= len(data) - (pos + 8 * doubles) < 8:
         raise ValueError("length does not match the layout")
-    values = np.array([v for i in vectors for v in _VEC3.unpack_from(data, pos + 8 * i)])
+    values = np.array(sum((_VEC3.unpack_from(data, pos + 8 * i) for i in vectors), ()))
     return sec * NS_PER_S + nsec, frame.decode(), values
 
 
