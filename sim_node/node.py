@@ -289,6 +289,7 @@ class SimNode(Node):
                   "rtf": sim_s / wall if wall > 0 else float("inf"),
                   "step_ms_p50": float(np.percentile(steady, 50)) if steady.size else float("nan"),
                   "step_ms_p99": float(np.percentile(steady, 99)) if steady.size else float("nan"),
+                  "step_ms_max": float(steady.max()) if steady.size else float("nan"),
                   "update_step_ms_max": max(self.latency_update_ms, default=float("nan")),
                   "deadline_misses": self.misses, "rejected": self.rejected,
                   "h1_normalised": m.h1_normalised[0], "h3_kmps": m.h3[0]}

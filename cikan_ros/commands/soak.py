@@ -79,8 +79,10 @@ def run(args: argparse.Namespace) -> int:
             try:
                 metrics = run_ros_mission(cfg, governor=args.governor, seed=args.seed, bag=bag,
                                           governor_exec=args.governor_exec)
+                ros = metrics.get("ros", {})
                 row.update(check_bag(bag, cfg), deadlines=metrics["lockstep_deadlines"],
-                           violations=metrics["violations"], rtf=metrics.get("ros", {}).get("rtf"))
+                           violations=metrics["violations"], rtf=ros.get("rtf"), step_ms_p99=ros.get("step_ms_p99"),
+                           worst_step_ms=worst_step_ms(ros))
                 row["ok"] = not (row["lost"] or row["duplicated"] or row["off_grid"] or row["deadlines"])
                 row["error"] = ""
             except CikanError as exc:
@@ -110,12 +112,23 @@ def run(args: argparse.Namespace) -> int:
                "lost": sum(r.get("lost", 0) for r in rows),
                "duplicated": sum(r.get("duplicated", 0) for r in rows),
                "deadlines": sum(r.get("deadlines", 0) for r in rows),
-               "load": bool(args.load), "governor": args.governor_exec or args.governor}
+               "load": bool(args.load), "governor": args.governor_exec or args.governor,
+               "worst_step_ms": max((r["worst_step_ms"] for r in rows if r.get("worst_step_ms") is not None),
+                                    default=None)}
     if args.json:
         print(dumps({**summary, "table": rows}))
     else:
         print(table(rows, summary))
     return 1 if failed else 0
+
+
+def worst_step_ms(ros: dict[str, Any]) -> float | None:
+    """The longest lockstep step of a mission (ms, states published -> command received): the
+    longest of the steps where the governor holds and of those where it decides; None when the
+    simulator's summary lacks them."""
+    steps = [float(ros[k]) for k in ("step_ms_max", "update_step_ms_max") if ros.get(k) is not None]
+    steps = [v for v in steps if v == v]
+    return max(steps) if steps else None
 
 
 def _line(row: dict[str, Any]) -> str:
@@ -129,8 +142,9 @@ def _line(row: dict[str, Any]) -> str:
 
 def table(rows: list[dict[str, Any]], summary: dict[str, Any]) -> str:
     """The soak as a Markdown table (one row per run) and a totals line."""
-    head = "| run | steps | messages | lost | duplicated | off grid | deadlines fired | violations | rtf | wall s | result |"
-    lines = [head, "|" + "---|" * 11]
+    head = ("| run | steps | messages | lost | duplicated | off grid | deadlines fired | violations | rtf | "
+            "step p99 ms | worst step ms | wall s | result |")
+    lines = [head, "|" + "---|" * 13]
     for r in rows:
         def cell(key: str, fmt: str = "{}") -> str:
             return "" if r.get(key) is None else fmt.format(r[key])
@@ -139,8 +153,9 @@ def table(rows: list[dict[str, Any]], summary: dict[str, Any]) -> str:
             result += f" (lost on {r['lost_on']})"
         lines.append(f"| {r['run']} | {cell('steps')} | {cell('messages')} | {cell('lost')} | {cell('duplicated')} | "
                      f"{cell('off_grid')} | {cell('deadlines')} | {cell('violations')} | {cell('rtf', '{:.0f}')} | "
-                     f"{r['wall_s']:.1f} | {result} |")
+                     f"{cell('step_ms_p99', '{:.2f}')} | {cell('worst_step_ms', '{:.2f}')} | {r['wall_s']:.1f} | {result} |")
     lines.append(f"\n{summary['runs']} runs ({summary['governor']}, load {'on' if summary['load'] else 'off'}): "
                  f"{summary['failed']} failed, {summary['lost']} messages lost, {summary['duplicated']} "
-                 f"duplicated, {summary['deadlines']} deadlines fired")
+                 f"duplicated, {summary['deadlines']} deadlines fired"
+                 + (f"; worst step {summary['worst_step_ms']:.1f} ms" if summary.get("worst_step_ms") else ""))
     return "\n".join(lines)
