@@ -29,6 +29,7 @@ QoS, chosen on purpose:
 from __future__ import annotations
 
 import faulthandler
+import gc
 import os
 import sys
 import time
@@ -451,6 +452,10 @@ def run_node(factory: Callable[[Any], Any], args: list[str] | None = None,
             node.open()  # what a node creates only once its parameters are known to be right
         executor = make_executor()
         executor.add_node(node)
+        # What the node loaded and built (modules, compiled kernels, messages, models) lives for the
+        # whole process: out of the collector's sight, a step's allocations are all a collection scans.
+        gc.collect()
+        gc.freeze()
         if getattr(node, "done", None) is None:
             node.done = Future()
         done = node.done
