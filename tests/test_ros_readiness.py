@@ -29,7 +29,7 @@ HERE = Path(__file__).resolve().parent
 NAIVE = HERE / "naive_governor.py"
 DURATION_S = 600.0   # 60 control steps, 10 decisions: short missions
 #: Values of the /diagnostics records that measure wall-clock time (they differ run to run).
-WALL_KEYS = {"latency_ms", "wall_s", "cpu_s", "rtf", "step_ms_p50", "step_ms_p99", "update_step_ms_max"}
+WALL_KEYS = {"latency_ms", "wall_s", "cpu_s", "rtf", "step_ms_p50", "step_ms_p99", "step_ms_max", "update_step_ms_max"}
 
 
 @pytest.fixture
