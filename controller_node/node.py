@@ -64,7 +64,8 @@ class ControllerNode(Node):
         self.pub_accel = self.readiness.publisher(AccelStamped, ACCEL_CMD, QOS_STREAM)
         self.accel_out = cdr.AccelCdr()  # the publisher's own message, serialised and refilled in place
         self.pub_diag = self.readiness.publisher(DiagnosticArray, DIAGNOSTICS, qos_for(DIAGNOSTICS))
-        self.wait = WaitDeadline(self, deadline, lost, self.on_deadline)
+        self.wait = WaitDeadline(self, deadline, lost, self.on_deadline,
+                                 ("controller.tau_deadline_s", "controller.lost_deadline_s"))
         # Raw: the states and the shift are read from their CDR bytes (cikan_ros.ros.cdr), not
         # deserialised whole.
         subs = [self.readiness.subscription(Odometry, DEPUTY_ODOM, self.on_deputy, QOS_STREAM, raw=True),

@@ -111,7 +111,8 @@ class SimNode(Node):
         self.steps: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []  # (k, x_c, x_d, u) awaiting a shift
         self.tau_held = float("nan")
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self.wait = WaitDeadline(self, self.deadline_s, self.lost_deadline_s, self.on_deadline)
+        self.wait = WaitDeadline(self, self.deadline_s, self.lost_deadline_s, self.on_deadline,
+                                 ("sim.command_deadline_s", "sim.lost_deadline_s"))
         waits = [(p, required_readers(t, peers)) for p, t in
                  ((self.pub_deputy, DEPUTY_ODOM), (self.pub_chief, CHIEF_ODOM), (self.pub_clock, CLOCK),
                   (self.pub_diag, DIAGNOSTICS), (self.pub_truth_chief, TRUTH_CHIEF),

@@ -83,6 +83,10 @@ def test_help_lists_every_parameter_and_does_not_start_rclpy(node: str, ros_env:
     (["controller_node", "--ros-args", "--params-file", "no/such/params.yaml"], "no/such/params.yaml"),
     (["governor_node", "--ros-args", "-p", "governor.name:=no_such_model"], "no_such_model"),
     (["sim_node", "--verbose"], "unrecognised arguments --verbose"),
+    (["sim_node", "--ros-args", "-p", "sim.command_deadline_s:=0.0"],
+     "sim.command_deadline_s must be a positive number of seconds, got 0.0"),
+    (["controller_node", "--ros-args", "-p", "controller.lost_deadline_s:=-1.0"],
+     "controller.lost_deadline_s must be a positive number of seconds, got -1.0"),
 ])
 def test_bad_input_is_one_line_and_exit_code_2(args: list[str], problem: str, ros_env: int,
                                                tmp_path: Path) -> None:

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import faulthandler
 import gc
+import math
 import os
 import sys
 import time
@@ -249,10 +250,15 @@ class WaitDeadline:
     #: Checks per deadline.
     CHECKS = 4
 
-    def __init__(self, node: Any, deadline_s: float, lost_deadline_s: float, on_miss: Callable[[], None]) -> None:
+    def __init__(self, node: Any, deadline_s: float, lost_deadline_s: float, on_miss: Callable[[], None],
+                 names: tuple[str, str] = ("deadline", "lost deadline")) -> None:
+        """``names``: the parameters the two deadlines come from (bad input names them)."""
         from rclpy.clock import Clock, ClockType
 
         self.deadline_s, self.lost_deadline_s = float(deadline_s), float(lost_deadline_s)
+        for name, value in zip(names, (self.deadline_s, self.lost_deadline_s)):
+            if not 0.0 < value < math.inf:
+                raise ConfigError(f"{name} must be a positive number of seconds, got {value!r}")
         self.on_miss = on_miss
         self.lost = False
         self.since: float | None = None   # perf_counter at the start of the wait, None: not waiting
