@@ -171,10 +171,10 @@ class SceneBuilder:
         sphere list (deputy first; one marker serialises in a third of the time of two), sized
         2 % of the range (at least 1 m) so both show at 100 km and at the port."""
         p_d = np.asarray(p_d, dtype=float)
-        size = max(0.02 * float(np.linalg.norm(p_d)), 1e-3)
+        size = max(0.02 * math.sqrt(p_d @ p_d), 1e-3)   # |p_d|, as numpy's norm computes it
         if p_v is None:
             return [Shape("bodies", 0, "sphere_list", p_d[None, :], size, COLORS["deputy"], (COLORS["deputy"],))]
-        return [Shape("bodies", 0, "sphere_list", np.stack([p_d, np.asarray(p_v, dtype=float)]), size,
+        return [Shape("bodies", 0, "sphere_list", np.array([p_d, p_v], dtype=float), size,
                       COLORS["deputy"], (COLORS["deputy"], COLORS["target"]))]
 
     def trail(self, k: int, p_d: ArrayLike, last: bool = False) -> Shape | None:
