@@ -49,6 +49,14 @@ def test_state_shapes_and_anomaly_range(predictor):
     assert x.shape == (3, 4, 6) and nu.shape == (3, 4)
     assert np.all((nu >= 0) & (nu < 2 * np.pi))
     assert predictor.orbit.state(0.0).shape == (6,)
+    # one float time (Python or numpy) takes a shorter path to the same kernel: the same bits
+    for k, tk in enumerate(t.ravel()):
+        for one in (float(tk), np.float64(tk)):
+            x1, nu1 = predictor.orbit.state_and_anomaly(one)
+            assert x1.shape == (6,) and np.array_equal(x1, x.reshape(-1, 6)[k]) and nu1 == nu.ravel()[k]
+    for bad in (float("nan"), np.inf, np.array([0.0, np.nan])):
+        with pytest.raises(StateError, match="finite"):
+            predictor.orbit.state_and_anomaly(bad)
 
 
 def test_chief_elements_recovered(cfg, predictor):
