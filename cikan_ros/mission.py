@@ -295,10 +295,9 @@ def between_violations(cfg: Config, x_d_path: NDArray, x_c_path: NDArray) -> int
     """Truth states violating h1 or h3 strictly between two control samples: rows 1 .. S-1 of
     the deputy's and the chief's states at the plant's substeps (:meth:`Truth.deputy_path`,
     :meth:`Truth.chief_path`; the samples themselves, rows 0 and S, are judged as ``violations``).
-    h2 is a property of the command, judged once per sample."""
-    m = margins(x_d_path[1:-1], x_c_path[1:-1], np.zeros(3), cfg.constraints, 1.0, cfg.side)
-    h1_bad, h3_bad = state_violations(m, cfg)
-    return int(np.count_nonzero(h1_bad | h3_bad))
+    h2 is a property of the command, judged once per sample (:class:`StepJudge`, which the
+    simulator calls with the sample's margins too)."""
+    return StepJudge(cfg, 1.0)(x_d_path[0], x_c_path[0], np.zeros(3), x_d_path, x_c_path)[3]
 
 
 class StepJudge:

@@ -244,13 +244,20 @@ def clock_cdr(stamp_ns: int) -> bytes:
     return _HEADER + _TIME.pack(*divmod(int(stamp_ns), NS_PER_S))
 
 
+def _stamped(stamp_ns: int) -> bytearray:
+    """The start of a message whose first field is a Header with an empty frame_id, padded to
+    the 4-alignment of what follows it."""
+    out = bytearray(clock_cdr(stamp_ns) + _EMPTY_STRING)
+    out += bytes(-len(out) % 4)
+    return out
+
+
 def time_shift_cdr(stamp_ns: int, tau_s: float, source: str) -> bytes:
     """The bytes of ``convert.time_shift_msg(stamp_ns, tau_s, source)`` (sensor_msgs/TimeReference:
     Header with an empty frame_id, time_ref = t_k + tau, source); MessageError, as there, for a
     tau off the whole-nanosecond grid."""
     ref = int(stamp_ns) + shift_ns(tau_s)
-    out = bytearray(_HEADER + _TIME.pack(*divmod(int(stamp_ns), NS_PER_S)) + _EMPTY_STRING)
-    out += bytes(-len(out) % 4)
+    out = _stamped(stamp_ns)
     out += _TIME.pack(*divmod(ref, NS_PER_S))
     _put_string(out, source)
     return bytes(out)
@@ -260,8 +267,7 @@ def diagnostic_cdr(name: str, level: str, message: str, stamp_ns: int,
                    values: Mapping[str, Any] | None = None) -> bytes:
     """The bytes of ``convert.diagnostic(name, level, message, stamp_ns, values)``
     (diagnostic_msgs/DiagnosticArray with one status; the values' text as there)."""
-    out = bytearray(_HEADER + _TIME.pack(*divmod(int(stamp_ns), NS_PER_S)) + _EMPTY_STRING)
-    out += bytes(-len(out) % 4)
+    out = _stamped(stamp_ns)
     out += _LENGTH.pack(1)                      # one status
     out += LEVELS[level]                        # a byte (octet)
     for text in (name, message, "cikan_ros"):
@@ -388,16 +394,14 @@ class _MarkerLayout:
             marks.append((float(size[0]) * 1e3, km_to_m(pts).astype("<f8").tobytes()))
         whole = _Template(markers_msg(marked, _STAMP_SENTINEL_NS), "visualization_msgs/msg/MarkerArray")
         buf = bytes(whole.buf)
-        self.kinds = [s.kind for s in shapes]
-        cuts: list[tuple[int, int]] = []          # (where the points begin, their length) per spliced marker
-        centres: dict[int, int] = {}              # a sphere's pose.position (absolute offset)
-        self.scales: list[tuple[int, int]] = []   # (absolute offset, how many doubles) of each marker's scale
+        self.factors = [np.array(SCALE_FACTORS[s.kind]) for s in shapes]
+        cuts: list[tuple[int, int]] = []   # (where the points begin, their length) per spliced marker
+        centres: dict[int, int] = {}       # a sphere's pose.position (absolute offset)
+        scales: list[int] = []             # where each marker's scale is (absolute offset)
         for i, (s, (size, pts)) in enumerate(zip(shapes, marks)):
-            factors = np.array(SCALE_FACTORS[s.kind])
-            self.scales.append((buf.find((size * factors).astype("<f8").tobytes()) if len(factors) else 0,
-                                len(factors)))
+            scales.append(buf.find((size * self.factors[i]).astype("<f8").tobytes()) if len(self.factors[i]) else 0)
             at = buf.find(pts)
-            if at < 0 or self.scales[-1][0] < 0:
+            if at < 0 or scales[-1] < 0:
                 raise ValueError("a marker template's sentinel values are not where they should be")
             if s.kind == "sphere":
                 centres[i] = at
@@ -418,20 +422,18 @@ class _MarkerLayout:
             raise ValueError("a refilled field lies in spliced points")
 
         self.stamps = [locate(at) for at in whole.stamps]
-        self.scale_views = [self._view(*locate(at), n) if n else None for at, n in self.scales]
-        self.factors = [np.array(SCALE_FACTORS[s.kind]) for s in shapes]
+        self.scale_views = [self._view(*locate(at), len(f)) if len(f) else None
+                            for at, f in zip(scales, self.factors)]
         # A sphere's centre (its pose.position, 3 doubles) is refilled; spliced points are not.
         self.centres = {i: self._view(*locate(at), 3) for i, at in centres.items()}
-        # The uint32 count of each spliced marker's points: the last 4-aligned word before them
-        # holding the template's count (alignment padding may lie between).
+        # The uint32 count of each spliced marker's points: the word just before them, or the one
+        # before that when 4 bytes of alignment padding lie between.
         self.counts = []
         for at, length in cuts:
-            seg, off = locate(at - 1)
-            off += 1
-            word = off - 4 if _LENGTH.unpack_from(self.segments[seg], off - 4)[0] == length // 24 else off - 8
-            if _LENGTH.unpack_from(self.segments[seg], word)[0] != length // 24:
+            word = at - 4 if _LENGTH.unpack_from(buf, at - 4)[0] == length // 24 else at - 8
+            if _LENGTH.unpack_from(buf, word)[0] != length // 24:
                 raise ValueError("a marker template's point count is not where it should be")
-            self.counts.append((seg, word))
+            self.counts.append(locate(word))
 
     def _view(self, seg: int, offset: int, n: int) -> NDArray:
         return np.frombuffer(self.segments[seg], dtype="<f8", count=n, offset=offset)
