@@ -109,6 +109,19 @@ def test_bag_opens_with_both_readers_and_counts_match(conventional: tuple[dict, 
         assert topic_meta["offered_qos_profiles"], ch.topic
         hashes = json.loads((share / pkg / "msg" / f"{name}.json").read_text())["type_hashes"]
         assert ch.metadata["topic_type_hash"] == topic_meta["type_description_hash"] == hashes[0]["hash_string"]
+    # The recorder registered every topic before the lockstep began (Readiness' prepare hook): in
+    # the record stream every Channel comes before the first Message.
+    from mcap.records import Channel, Message
+    from mcap.stream_reader import StreamReader
+
+    with open(next(bag.glob("*.mcap")), "rb") as f:
+        before = set()
+        for record in StreamReader(f).records:
+            if isinstance(record, Message):
+                break
+            if isinstance(record, Channel):
+                before.add(record.topic)
+    assert before == set(meta_topics)
 
 
 def _learned_mission(name: str, tmp_path: Path, scenario: str = "paper", approach: str = "behind") -> None:

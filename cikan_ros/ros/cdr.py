@@ -467,8 +467,10 @@ class MarkersCdr:
     on first use by :class:`_MarkerLayout`; any number of points): the simulator's scene, its
     moving bodies every step, its path every governor update period and its constraints."""
 
-    def __init__(self) -> None:
-        self.layouts: dict[tuple, _MarkerLayout] = {}
+    #: The layouts made so far, shared by every instance of the process: a layout is a template
+    #: (bytes with offsets), the same for every stream, and making one takes ~1-2 ms (rosbags'
+    #: serialisation), so the simulator's warm-up makes them before the lockstep's first step does.
+    layouts: dict[tuple, _MarkerLayout] = {}
 
     @staticmethod
     def layout(shapes: Sequence[Shape]) -> tuple:

@@ -108,8 +108,10 @@ class Readiness:
       /graph/ready discovered on the domain),
     - ``check()`` (if given) reports nothing missing,
 
-    then announces ``ready`` on /graph/ready (DiagnosticStatus: name = peer name, hardware_id =
-    node name, values ``reads``, ``writes`` and ``wall_ns``) and calls ``on_ready`` once. It logs
+    then calls ``prepare`` (if given: what the node does once its peers are known and before the
+    lockstep can start, such as the recorder registering its topics), announces ``ready`` on
+    /graph/ready (DiagnosticStatus: name = peer name, hardware_id = node name, values ``reads``,
+    ``writes`` and ``wall_ns``) and calls ``on_ready`` once. It logs
     what it waits for; after ``timeout_s`` it logs one error line naming what is missing and ends
     the node with :data:`EXIT_NO_PEERS` (through the node's ``done`` future, see
     :func:`run_node`); a ``timeout_s`` of ``inf`` waits for ever (the recorder).
@@ -158,7 +160,8 @@ class Readiness:
             self._poll()
 
     def start(self, waits: list[tuple[Any, int]], reads: list[tuple[Any, int]], timeout_s: float,
-              on_ready: Callable[[], None], check: Callable[[], list[str]] | None = None) -> None:
+              on_ready: Callable[[], None], check: Callable[[], list[str]] | None = None,
+              prepare: Callable[[], None] | None = None) -> None:
         from rclpy.clock import Clock, ClockType
 
         peers = plain(self.node.get_parameter("graph.peers").value) if self.node.has_parameter("graph.peers") \
@@ -167,6 +170,7 @@ class Readiness:
         waits = [*waits, (self.pub, 1 if "sim" in peers else 0)]
         self.waits, self.reads, self.timeout_s, self.on_ready, self.check = waits, reads, timeout_s, \
             on_ready, check
+        self.prepare = prepare
         self._clock = Clock(clock_type=ClockType.STEADY_TIME)
         self._t0 = self._clock.now()
         self._said = False
@@ -218,6 +222,8 @@ class Readiness:
             self.node.exit_code = EXIT_NO_PEERS
             self.node.done.set_result(False)
             return
+        if self.prepare is not None:
+            self.prepare()
         self.announce()
         self.on_ready()
 
