@@ -83,8 +83,9 @@ class SimNode(Node):
         self.x_c = np.zeros(6)
         self.misses = 0
         self.rejected = 0
-        self.latency_ms: list[float] = []
-        self.latency_update_ms: list[float] = []
+        self.latency_ms: list[float] = []          # steps where the governor holds tau
+        self.latency_update_ms: list[float] = []   # the first step and the update steps
+        self.worst = [(-1.0, -1), (-1.0, -1)]     # (longest latency ms, its step): holding, deciding
         self.done = Future()
         self.pub_clock = self.readiness.publisher(ClockMsg, CLOCK, QOS_STREAM)
         self.pub_chief = self.readiness.publisher(Odometry, CHIEF_ODOM, QOS_STREAM)
@@ -208,6 +209,8 @@ class SimNode(Node):
         if source == "command":
             decision = k == 0 or self.loop.update_due(k)
             (self.latency_update_ms if decision else self.latency_ms).append(ms)
+            if ms > self.worst[decision][0]:
+                self.worst[decision] = (ms, k)
         u = self.truth.applied_thrust(u)  # through the thrusters: the acceleration as applied
         path = self.truth.deputy_path(k, x, u)
         self.steps.append((k, x_c, x, u))
@@ -292,6 +295,7 @@ class SimNode(Node):
                   "step_ms_p99": float(np.percentile(steady, 99)) if steady.size else float("nan"),
                   "step_ms_max": float(steady.max()) if steady.size else float("nan"),
                   "update_step_ms_max": max(self.latency_update_ms, default=float("nan")),
+                  "step_ms_max_k": self.worst[False][1], "update_step_ms_max_k": self.worst[True][1],
                   "deadline_misses": self.misses, "rejected": self.rejected,
                   "h1_normalised": m.h1_normalised[0], "h3_kmps": m.h3[0]}
         self.pub_diag.publish(cdr.diagnostic_cdr(NAME, "ok", "mission complete", self.stamp(), values))

@@ -22,6 +22,7 @@ from cikan_ros.config import load_config
 from cikan_ros.errors import MissionError
 from cikan_ros.ros.launch import lockstep_verdict, recorded_steps, run_ros_mission
 from cikan_ros.ros.bag_reader import read_bag
+from cikan_ros.ros.convert import diagnostic_values
 from ros_helpers import ros_env, rosbags_messages, shifts
 
 __all__ = ["ros_env"]
@@ -29,7 +30,8 @@ HERE = Path(__file__).resolve().parent
 NAIVE = HERE / "naive_governor.py"
 DURATION_S = 600.0   # 60 control steps, 10 decisions: short missions
 #: Values of the /diagnostics records that measure wall-clock time (they differ run to run).
-WALL_KEYS = {"latency_ms", "wall_s", "cpu_s", "rtf", "step_ms_p50", "step_ms_p99", "step_ms_max", "update_step_ms_max"}
+WALL_KEYS = {"latency_ms", "wall_s", "cpu_s", "rtf", "step_ms_p50", "step_ms_p99", "step_ms_max", "update_step_ms_max",
+             "step_ms_max_k", "update_step_ms_max_k"}
 
 
 @pytest.fixture
@@ -157,6 +159,15 @@ def test_soak_and_mission_check_every_bag(ros_env: int, tmp_path: Path) -> None:
     assert row["steps"] == 30 and row["lost"] == row["duplicated"] == row["off_grid"] == 0
     # the step latencies the simulator reports: p99 of the holding steps, worst of all steps
     assert 0 < row["step_ms_p99"] <= row["worst_step_ms"] == result["worst_step_ms"]
+    # ... and which step it was: the simulator's own record of that step carries that latency,
+    # the longest of the mission's step records
+    latencies = {int(v["k"]): float(v["latency_ms"]) for v in
+                 (diagnostic_values(st) for _, arr in read_bag(tmp_path / "soak" / "run_000")["/diagnostics"]
+                  for st in arr.status if st.name == "sim_node")
+                 if v.get("event") == "step" and "latency_ms" in v}
+    assert len(latencies) == 30 and result["worst_step_run"] == 1 and result["worst_step_k"] == row["worst_step_k"]
+    assert latencies[row["worst_step_k"]] == pytest.approx(row["worst_step_ms"], rel=1e-12)
+    assert row["worst_step_ms"] == pytest.approx(max(latencies.values()), rel=1e-12)
     cfg = load_config(**{"mission.duration_s": 310.0})   # a mission one step longer than the bag
     # one per topic: the 5 state topics, the telemetry and the scene markers, the shift, the command,
     # the applied thrust, the sim step record

@@ -82,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
                 ros = metrics.get("ros", {})
                 row.update(check_bag(bag, cfg), deadlines=metrics["lockstep_deadlines"],
                            violations=metrics["violations"], rtf=ros.get("rtf"), step_ms_p99=ros.get("step_ms_p99"),
-                           worst_step_ms=worst_step_ms(ros))
+                           **worst_step(ros))
                 row["ok"] = not (row["lost"] or row["duplicated"] or row["off_grid"] or row["deadlines"])
                 row["error"] = ""
             except CikanError as exc:
@@ -113,8 +113,12 @@ def run(args: argparse.Namespace) -> int:
                "duplicated": sum(r.get("duplicated", 0) for r in rows),
                "deadlines": sum(r.get("deadlines", 0) for r in rows),
                "load": bool(args.load), "governor": args.governor_exec or args.governor,
-               "worst_step_ms": max((r["worst_step_ms"] for r in rows if r.get("worst_step_ms") is not None),
-                                    default=None)}
+               "worst_step_ms": None, "worst_step_run": None, "worst_step_k": None}
+    timed = [r for r in rows if r.get("worst_step_ms") is not None]
+    if timed:
+        worst = max(timed, key=lambda r: r["worst_step_ms"])
+        summary.update(worst_step_ms=worst["worst_step_ms"], worst_step_run=worst["run"],
+                       worst_step_k=worst["worst_step_k"])
     if args.json:
         print(dumps({**summary, "table": rows}))
     else:
@@ -122,13 +126,16 @@ def run(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
-def worst_step_ms(ros: dict[str, Any]) -> float | None:
-    """The longest lockstep step of a mission (ms, states published -> command received): the
-    longest of the steps where the governor holds and of those where it decides; None when the
-    simulator's summary lacks them."""
-    steps = [float(ros[k]) for k in ("step_ms_max", "update_step_ms_max") if ros.get(k) is not None]
-    steps = [v for v in steps if v == v]
-    return max(steps) if steps else None
+def worst_step(ros: dict[str, Any]) -> dict[str, Any]:
+    """The longest lockstep step of a mission (states published -> command received):
+    ``worst_step_ms`` (ms), the longest of the steps where the governor holds and of those where
+    it decides, and ``worst_step_k``, its step; None for both when the simulator's summary lacks
+    them."""
+    steps = [(float(ros[k]), int(float(ros[f"{k}_k"])) if ros.get(f"{k}_k") is not None else None)
+             for k in ("step_ms_max", "update_step_ms_max") if ros.get(k) is not None]
+    steps = [s for s in steps if s[0] == s[0]]
+    ms, k = max(steps, key=lambda s: s[0]) if steps else (None, None)
+    return {"worst_step_ms": ms, "worst_step_k": k}
 
 
 def _line(row: dict[str, Any]) -> str:
@@ -143,7 +150,7 @@ def _line(row: dict[str, Any]) -> str:
 def table(rows: list[dict[str, Any]], summary: dict[str, Any]) -> str:
     """The soak as a Markdown table (one row per run) and a totals line."""
     head = ("| run | steps | messages | lost | duplicated | off grid | deadlines fired | violations | rtf | "
-            "step p99 ms | worst step ms | wall s | result |")
+            "step p99 ms | worst step ms (k) | wall s | result |")
     lines = [head, "|" + "---|" * 13]
     for r in rows:
         def cell(key: str, fmt: str = "{}") -> str:
@@ -153,9 +160,12 @@ def table(rows: list[dict[str, Any]], summary: dict[str, Any]) -> str:
             result += f" (lost on {r['lost_on']})"
         lines.append(f"| {r['run']} | {cell('steps')} | {cell('messages')} | {cell('lost')} | {cell('duplicated')} | "
                      f"{cell('off_grid')} | {cell('deadlines')} | {cell('violations')} | {cell('rtf', '{:.0f}')} | "
-                     f"{cell('step_ms_p99', '{:.2f}')} | {cell('worst_step_ms', '{:.2f}')} | {r['wall_s']:.1f} | {result} |")
+                     f"{cell('step_ms_p99', '{:.2f}')} | {cell('worst_step_ms', '{:.2f}')}"
+                     + (f" ({r['worst_step_k']})" if r.get("worst_step_k") is not None else "")
+                     + f" | {r['wall_s']:.1f} | {result} |")
     lines.append(f"\n{summary['runs']} runs ({summary['governor']}, load {'on' if summary['load'] else 'off'}): "
                  f"{summary['failed']} failed, {summary['lost']} messages lost, {summary['duplicated']} "
                  f"duplicated, {summary['deadlines']} deadlines fired"
-                 + (f"; worst step {summary['worst_step_ms']:.1f} ms" if summary.get("worst_step_ms") else ""))
+                 + (f"; worst step {summary['worst_step_ms']:.1f} ms (run {summary['worst_step_run']}, step "
+                    f"{summary['worst_step_k']})" if summary.get("worst_step_ms") else ""))
     return "\n".join(lines)
