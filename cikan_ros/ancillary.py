@@ -8,8 +8,10 @@ command u_p,j (flown at gamma u_max) at the samples j before the terminal sample
 k the command is u_p,j - K_a(nu_v) (x_hat - x_p,j), j = k - k_0, with K_a the FTRE gain of the
 LQ weight ``tsg.ancillary_r_diag`` (saturated at u_max only as a last guard: robust Verify
 refused every shift whose tube could make it saturate). From the terminal sample on the plan
-is done and the FTRE law toward the virtual target flies, as robust Verify's terminal test
-assumed. A held shift keeps its plan: no re-verification.
+is done and the loop robust Verify's terminal test handed the truth to flies: the FTRE law
+toward the virtual target, or, where that loop would saturate on the terminal ball, the tracking
+law holding it, -K_a(nu_v) (x_hat - x_v) (:func:`cikan_ros.robust.ancillary_terminal_ok`). A
+held shift keeps its plan: no re-verification.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from numpy.typing import NDArray
 from .config import ancillary_control_config
 from .control import gain_table, interpolate_gain, saturate
 from .errors import StateError
+from .robust import HANDOFF_FTRE, HANDOFF_TRACK
 from .tsg import Predictor
 
 
@@ -41,6 +44,9 @@ class Plan:
     tau: float
     x_p: NDArray
     u_p: NDArray
+    #: After the terminal sample the truth holds x_v with the tracking law (robust Verify's
+    #: handoff, :data:`~cikan_ros.robust.HANDOFF_TRACK`), else the FTRE law flies.
+    holds_target: bool = False
 
     @classmethod
     def accepted(cls, predictor: Predictor, k: int, t: float, tau: float, x_d: NDArray) -> "Plan":
@@ -49,8 +55,9 @@ class Plan:
         ok, trace = predictor.rollout_trace(x_d, t, tau)
         if not ok:
             raise StateError(f"the shift {tau} s taking effect at t = {t} s does not pass robust Verify: no plan")
-        term = int(np.flatnonzero(trace[:, 8] == 1.0)[0])
-        return cls(k, float(tau), trace[:term, :6].copy(), trace[:term, 9:12].copy())
+        term = int(np.flatnonzero(trace[:, 8] >= HANDOFF_FTRE)[0])
+        return cls(k, float(tau), trace[:term, :6].copy(), trace[:term, 9:12].copy(),
+                   bool(trace[term, 8] == HANDOFF_TRACK))
 
     def sample(self, k: int) -> int | None:
         """The plan's sample j at control step k, or None once the plan is done (terminal)."""
@@ -72,5 +79,13 @@ class AncillaryLaw:
         """The tracking command (km/s^2, ECI) at the plan's sample j from the measured deputy."""
         k_a = interpolate_gain(self.gains, nu_v)
         u = plan.u_p[j] - k_a @ (np.asarray(x_d, dtype=float) - plan.x_p[j])
+        self.guard_saturations += bool(math.sqrt(float(u @ u)) > self.u_max)
+        return saturate(u, self.u_max)
+
+    def hold(self, nu_v: float, x_d: NDArray, x_v: NDArray) -> NDArray:
+        """The tracking law holding the virtual target after a plan handed the truth to it:
+        -K_a(nu_v) (x_hat - x_v) (km/s^2, ECI), saturated only as a guard."""
+        k_a = interpolate_gain(self.gains, nu_v)
+        u = -(k_a @ (np.asarray(x_d, dtype=float) - np.asarray(x_v, dtype=float)))
         self.guard_saturations += bool(math.sqrt(float(u @ u)) > self.u_max)
         return saturate(u, self.u_max)

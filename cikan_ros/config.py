@@ -151,7 +151,7 @@ class TSGConfig:
     #: (flown at ``ancillary_gamma`` u_max) with the linear gain of LQ weight
     #: ``ancillary_r_diag``, which must never saturate. Read only under ``tsg.robust``.
     tube: str = "ball"
-    ancillary_gamma: float = 0.7
+    ancillary_gamma: float = 0.5
     ancillary_r_diag: tuple[float, ...] = (1e10, 1e10, 1e10)
 
     def __post_init__(self) -> None:

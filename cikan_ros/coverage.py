@@ -27,6 +27,7 @@ from .config import Config
 from .errors import ConfigError
 from .governor import PATH_KEEP, Governor, UpdateRecord
 from .mission import ClosedLoop, run_mission, sample_start, through_si
+from .robust import HANDOFF_FTRE
 from .registry import make_governor
 from .truth import Truth
 
@@ -112,7 +113,7 @@ def held_shift_coverage(cfg: Config, seed: int, governor: str = "conventional") 
     if not ok:
         return Coverage(seed, corner, tau, math.nan, math.nan, -1, -1, -1, math.nan, math.nan, -1,
                         violations)
-    term = int(np.flatnonzero(trace[:, 8] == 1.0)[0])
+    term = int(np.flatnonzero(trace[:, 8] >= HANDOFF_FTRE)[0])
     flown = min(term, len(result.x_d))  # a prediction may reach its terminal set after the mission
     err_p = np.linalg.norm(result.x_d[:flown, :3] - trace[:flown, :3], axis=1)
     err_v = np.linalg.norm(result.x_d[:flown, 3:] - trace[:flown, 3:6], axis=1)

@@ -164,6 +164,8 @@ class ClosedLoop(Schedule):
             j = self.plan.sample(k)
             if j is not None:
                 return self.ancillary.command(self.plan, j, float(nu_v), x_d)
+            if self.plan.holds_target:
+                return self.ancillary.hold(float(nu_v), x_d, x_v)
         return ftre_control(pred.gains, float(nu_v), x_d, x_v, self.config.control.u_max_kmps2)
 
 

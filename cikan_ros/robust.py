@@ -531,14 +531,40 @@ def ancillary_step(rp: NDArray, u_max: float, ts: float, x: NDArray, xc: NDArray
     return rho, sig, r1, s1, r2, s2, True
 
 
+#: How the truth flies on from the terminal sample of an ancillary-tube rollout (the code robust
+#: Verify's trace carries in its column 8, :func:`ancillary_terminal_ok`): the FTRE law toward x_v,
+#: or the tracking law holding x_v with K_a.
+HANDOFF_FTRE, HANDOFF_TRACK = 1.0, 2.0
+
+
 @nb.njit(cache=True)
 def ancillary_terminal_ok(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, dp: float, dv: float,
-                          rho: float, sig: float, ts: float) -> tuple[bool, float, float]:
-    """The robust terminal test of the ancillary tube: from the terminal sample on, the controller
-    flies the FTRE law of the prediction toward x_v (no tracking), so the truth's error from the
-    prediction, within (rho, sigma) there, is handed to the FTRE loop as a transient
-    z = e + G_K delta (:func:`robust_terminal_ok`, not linear: C0 takes it over); the truth's
-    command, at most |K_p| (ball_p + b_p) + |K_v| (ball_v + b_v), must stay below u_max."""
+                          rho: float, sig: float, ts: float) -> tuple[bool, float, float, float]:
+    """The robust terminal test of the ancillary tube: (ok, ball radii, handoff). From the
+    terminal sample on the plan is done and the truth, within (rho, sigma) of the prediction
+    there, which is within (dp, dv) of the virtual target x_v, is handed to one of two loops:
+
+    - the FTRE law toward x_v (:data:`HANDOFF_FTRE`; :func:`ancillary_ftre_handoff`), when its
+      terminal ball keeps the FTRE command below u_max: the stiffer loop, whose small ball lets
+      tau = 0 fit inside the cone's apex radius (docking);
+    - else the tracking law holding x_v, u = -K_a (x_hat - x_v) (:data:`HANDOFF_TRACK`;
+      :func:`ancillary_track_handoff`), the loop the plan was tracked with, which does not
+      saturate on a ball of kilometres: far from the chief, where the FTRE loop would.
+    """
+    ok, ball_p, ball_v = ancillary_ftre_handoff(xv, xc, cp, rp, dp, dv, rho, sig, ts)
+    if ok:
+        return True, ball_p, ball_v, HANDOFF_FTRE
+    ok, ball_p, ball_v = ancillary_track_handoff(xv, xc, cp, rp, dp, dv, rho, sig, ts)
+    return ok, ball_p, ball_v, HANDOFF_TRACK
+
+
+@nb.njit(cache=True)
+def ancillary_ftre_handoff(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, dp: float, dv: float,
+                           rho: float, sig: float, ts: float) -> tuple[bool, float, float]:
+    """The handoff to the FTRE law toward x_v: the truth's error from the prediction, within
+    (rho, sigma), is handed to the FTRE loop as a transient z = e + G_K delta
+    (:func:`robust_terminal_ok`, not linear: C0 takes it over); the truth's command, at most
+    |K_p| (ball_p + b_p) + |K_v| (ball_v + b_v), must stay below u_max."""
     rng = math.sqrt((xv[0] - xc[0]) ** 2 + (xv[1] - xc[1]) ** 2 + (xv[2] - xc[2]) ** 2)
     vel = math.sqrt((xv[3] - xc[3]) ** 2 + (xv[4] - xc[4]) ** 2 + (xv[5] - xc[5]) ** 2)
     bp, bv, _, _ = nav_terms(rp, rng + rho, vel + sig, ts)
@@ -551,3 +577,43 @@ def ancillary_terminal_ok(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, dp
     if rp[R_KP] * (ball_p + bp) + rp[R_KV] * (ball_v + bv) >= cp[C_UMAX]:
         return False, 0.0, 0.0
     return True, ball_p, ball_v
+
+
+@nb.njit(cache=True)
+def ancillary_track_handoff(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, dp: float, dv: float,
+                            rho: float, sig: float, ts: float) -> tuple[bool, float, float]:
+    """The handoff to the tracking law holding the virtual target, u = -K_a (x_hat - x_v): x_v
+    flies the prediction's gravity (the truth's), so the error e = x - x_v obeys
+    e' = Phi_M e - B M K_a delta + B d (Phi_M = A - B M K_a, the plan's tracking loop with the
+    actual thrusters) from |e_p| <= rho + dp, |e_v| <= sigma + dv. Bounded as the ancillary tube's
+    second recursion bounds it (driven by the navigation error itself, no smoothness assumed):
+    R' = lam R + C_n b + C_e eta from R_0 = C0 e_0, so |e| <= max(R_0, R_inf) with R_inf =
+    (C_n b + C_e eta) / (1 - lam), b and eta at the ball's own largest range and command (its
+    fixed point, 1 nm); eta = eps_u |u| + d_max + k_g r over-counts the thruster error, which the
+    loop's M already holds. The command |K_a,p| (ball_p + b_p) + |K_a,v| (ball_v + b_v) must stay
+    below u_max (the law never saturates, so the linear error system holds), and the ball must
+    satisfy h1 and h3 (checked at the terminal sample's geometry, as the FTRE ball)."""
+    rng = math.sqrt((xv[0] - xc[0]) ** 2 + (xv[1] - xc[1]) ** 2 + (xv[2] - xc[2]) ** 2)
+    vel = math.sqrt((xv[3] - xc[3]) ** 2 + (xv[4] - xc[4]) ** 2 + (xv[5] - xc[5]) ** 2)
+    e_p, e_v = rho + dp, sig + dv
+    r0 = rp[RA_C0PP] * e_p + rp[RA_C0PV] * e_v
+    s0 = rp[RA_C0VP] * e_p + rp[RA_C0VV] * e_v
+    gain = 1.0 / (1.0 - rp[RA_LAM])
+    ball_p, ball_v = r0, s0
+    for _ in range(100):  # the ball enters its own range, speed and command bounds: to the fixed point
+        bp, bv, _, _ = nav_terms(rp, rng + ball_p, vel + ball_v, ts)
+        un = rp[RA_KP] * (ball_p + bp) + rp[RA_KV] * (ball_v + bv)
+        eta = rp[R_EPSU] * un + rp[R_DMAX] + rp[R_KG] * (rng + ball_p)
+        new_p = max(r0, gain * (rp[RA_CNPP] * bp + rp[RA_CNPV] * bv + rp[RA_CPE] * eta))
+        new_v = max(s0, gain * (rp[RA_CNVP] * bp + rp[RA_CNVV] * bv + rp[RA_CVE] * eta))
+        settled = new_p - ball_p <= 1e-12 and new_v - ball_v <= 1e-15
+        ball_p, ball_v = new_p, new_v
+        if settled:
+            break
+    else:
+        return False, 0.0, 0.0  # no fixed point: the navigation error grows faster than the ball
+    bp, bv, _, _ = nav_terms(rp, rng + ball_p, vel + ball_v, ts)
+    if rp[RA_KP] * (ball_p + bp) + rp[RA_KV] * (ball_v + bv) >= cp[C_UMAX]:
+        return False, 0.0, 0.0
+    ok = robust_h1_ok(xv, xc, cp, rp[R_SINA], ball_p) and robust_h3_ok(xv, xc, cp, ball_p, ball_v)
+    return ok, ball_p, ball_v

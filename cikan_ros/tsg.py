@@ -47,7 +47,7 @@ from .errors import NoFeasibleShiftError, StateError
 from .orbit import (N_PARAMS, P_E, P_M0, P_MU, P_N, KeplerOrbit, check_states,
                     eccentric_anomaly_kernel, osculating_params_kernel, state_from_anomaly_kernel,
                     state_kernel, state_warm_kernel)
-from .robust import (R_GAMMA, R_ON, R_TUBE, R_ZETA, ancillary_start, ancillary_step, ancillary_terminal_ok,
+from .robust import (HANDOFF_FTRE, R_GAMMA, R_ON, R_TUBE, R_ZETA, ancillary_start, ancillary_step, ancillary_terminal_ok,
                      robust_params, robust_terminal_ok, tube_next, tube_ok, tube_start)
 from .units import ns_to_seconds
 from .units import seconds_to_ns as to_ns
@@ -119,8 +119,10 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
     ``trace`` (N_p, 18), or an empty array for none, receives under robust Verify each checked
     sample's predicted deputy, rho, sigma, 0, the command applied from it (km/s^2) and the
     predicted chief, and at the
-    accepting sample the virtual target, the terminal ball's radii and 1 (what ``cikan coverage``
-    compares the truth with, and what the ancillary tube's controller tracks).
+    accepting sample the virtual target, the terminal ball's radii and the loop the truth flies
+    on with (:data:`~cikan_ros.robust.HANDOFF_FTRE` 1, or under the ancillary tube
+    :data:`~cikan_ros.robust.HANDOFF_TRACK` 2: the tracking law holding x_v): what ``cikan
+    coverage`` compares the truth with, and what the ancillary tube's controller tracks.
     Under the ancillary tube (``rp[R_TUBE]``) the prediction flies at gamma u_max and the tube is
     :func:`~cikan_ros.robust.ancillary_step`'s, which refuses a shift whose tracking law could
     saturate.
@@ -195,17 +197,18 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
             if not robust:
                 return True
             if ancillary:
-                ok, ball_p, ball_v = ancillary_terminal_ok(xv, xc, cp, rp, math.sqrt(dp2), math.sqrt(dv2),
+                ok, ball_p, ball_v, handoff = ancillary_terminal_ok(xv, xc, cp, rp, math.sqrt(dp2), math.sqrt(dv2),
                                                            rho, sig, ts)
             else:
                 ok, ball_p, ball_v = robust_terminal_ok(xv, xc, cp, rp, math.sqrt(dp2), math.sqrt(dv2),
                                                         big_r, big_s, linear, ts)
+                handoff = HANDOFF_FTRE
             if ok:
                 if trace.shape[0] > 0:
                     trace[j, :6] = xv
                     trace[j, 6] = ball_p
                     trace[j, 7] = ball_v
-                    trace[j, 8] = 1.0
+                    trace[j, 8] = handoff
                 return True
         a_n = ftre_control_kernel(table, nu_v, x, xv, u_pred, kb, u)  # |u| before saturation
         # h2 holds by saturation up to rounding; checked so a changed control law cannot skip it.
