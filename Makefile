@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 EXTRAS := ros,learn,report,view,dev
 
-.PHONY: install browser run test test-avx2 bench montecarlo results robustness corners coverage controller-sweep models models-prev scenario-data scenario-models scenario-result scenario-results scenario-index scenario-bench bad-networks clean
+.PHONY: install browser run test test-avx2 bench montecarlo results robustness corners coverage coverage-ancillary controller-sweep models models-prev scenario-data scenario-models scenario-result scenario-results scenario-index scenario-bench bad-networks clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -99,6 +99,12 @@ COVERAGE_RUNS ?= 20
 coverage: $(STAMP)
 	$(BIN)/cikan coverage --sweep --corners --truth realistic --robust --runs $(COVERAGE_RUNS) --workers 2 \
 		--out docs/results/coverage.md
+
+# The same sweep for the ancillary tube (docs/robustness.md, "The ancillary tube") ->
+# docs/results/coverage_ancillary.md.
+coverage-ancillary: $(STAMP)
+	$(BIN)/cikan coverage --sweep --corners --truth realistic --robust --runs $(COVERAGE_RUNS) --workers 2 \
+		--set tsg.tube=ancillary --out docs/results/coverage_ancillary.md
 
 # How the robust controller's weight was chosen (docs/robustness.md, "The controller"): the
 # conventional TSG under robust Verify, realistic truth, Table 2 starts, for LQ control weights

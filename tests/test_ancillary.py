@@ -33,6 +33,18 @@ def ball_draw(rng: np.random.Generator, radius: float) -> np.ndarray:
     return v / np.linalg.norm(v) * radius * rng.uniform()
 
 
+def tracking_loop(nu: float, which: int) -> tuple[np.ndarray, ...]:
+    """The tracking loop at true anomaly nu with extreme thruster map ``which``, independently of
+    the kernels: (M, the chief's state, A_d, B_d from scipy's ZOH of the linearised dynamics, K_a)."""
+    truth = CFG.truth
+    bias, point = truth.bound("thrust_bias_max"), math.radians(truth.bound("thrust_pointing_max_deg"))
+    orbit = PRED.orbit
+    chief = elements_to_state(orbit.a, orbit.e, orbit.i, orbit.raan, orbit.argp, nu, orbit.mu)
+    a_d, b_d = zoh_discretise(linearisation(chief[:3], orbit.mu), B_INPUT, CFG.control.period_s)
+    k_a = interpolate_gain(gain_table(orbit, ancillary_control_config(CFG)), nu)
+    return thrust_matrices(bias, point)[which], chief, a_d, b_d, k_a
+
+
 @settings(max_examples=12, deadline=None)
 @given(seed=st.integers(0, 2**31), nu=st.floats(0.0, 2 * math.pi),
        which=st.integers(0, len(thrust_matrices(0.02, math.radians(1.0))) - 1),
@@ -43,14 +55,8 @@ def test_the_ancillary_tube_bounds_the_tracking_error_and_keeps_headroom(seed, n
     rate, |u_p| = gamma u_max in random directions, |d| <= d_max: wherever ancillary_step grants
     headroom the truth's command u_p - K_a (e + delta) is within u_max, and |e_p| <= rho,
     |e_v| <= sigma at every sample."""
-    truth = CFG.truth
-    bias, point = truth.bound("thrust_bias_max"), math.radians(truth.bound("thrust_pointing_max_deg"))
-    m = thrust_matrices(bias, point)[which]
-    orbit = PRED.orbit
-    chief = elements_to_state(orbit.a, orbit.e, orbit.i, orbit.raan, orbit.argp, nu, orbit.mu)
-    a_d, b_d = zoh_discretise(linearisation(chief[:3], orbit.mu), B_INPUT, CFG.control.period_s)
-    k_a = interpolate_gain(gain_table(orbit, ancillary_control_config(CFG)), nu)
-    u_max = CFG.control.u_max_kmps2
+    truth, u_max = CFG.truth, CFG.control.u_max_kmps2
+    m, chief, a_d, b_d, k_a = tracking_loop(nu, which)
     rng = np.random.default_rng(seed)
     # the prediction: rng_km from the chief, at rest relative to it (the kernels read range and speed)
     x = chief.copy()
@@ -94,14 +100,8 @@ def test_the_tracking_handoff_ball_bounds_the_error_and_keeps_headroom(seed, nu,
     navigation error anywhere in its ball at every sample (no smoothness), |d| <= d_max: wherever
     ancillary_track_handoff accepts, the command stays within u_max and |e_p| <= ball_p,
     |e_v| <= ball_v at every sample."""
-    truth = CFG.truth
-    bias, point = truth.bound("thrust_bias_max"), math.radians(truth.bound("thrust_pointing_max_deg"))
-    m = thrust_matrices(bias, point)[which]
-    orbit = PRED.orbit
-    chief = elements_to_state(orbit.a, orbit.e, orbit.i, orbit.raan, orbit.argp, nu, orbit.mu)
-    a_d, b_d = zoh_discretise(linearisation(chief[:3], orbit.mu), B_INPUT, CFG.control.period_s)
-    k_a = interpolate_gain(gain_table(orbit, ancillary_control_config(CFG)), nu)
-    u_max = CFG.control.u_max_kmps2
+    truth, u_max = CFG.truth, CFG.control.u_max_kmps2
+    m, chief, a_d, b_d, k_a = tracking_loop(nu, which)
     # the virtual target on the cone's axis behind the chief, moving with it
     x_v = chief.copy()
     x_v[:3] -= chief[3:] / np.linalg.norm(chief[3:]) * rng_km
