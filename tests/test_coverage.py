@@ -82,6 +82,11 @@ def test_a_campaign_flies_the_random_draws_and_every_corner_on_the_same_starts()
     s = summarise(rows)[0]
     assert (s["flights"], s["refused"], s["vel_ratio"], s["covered"]) == (2, 1, 1.2, False)
     assert s["worst_at"] == "seed 1, sample 7"
+    # the first sample's rounding (the truth on the navigation bound) covers; every start refused does not
+    on_bound = {**rows[0], "corner": "y", "pos_ratio": 1.0 + 3e-13, "vel_ratio": 1.0, "ball_pos_ratio": 0.2}
+    refused = {"seed": 3, "corner": "z", "error": "no feasible time shift"}
+    by = {s["corner"]: s for s in summarise([on_bound, refused])}
+    assert by["y"]["covered"] and not by["z"]["covered"] and by["z"]["flown"] == 0
 
 
 def test_cikan_coverage_refuses_nominal_verify_in_one_line():
