@@ -29,11 +29,6 @@ from .robust import HANDOFF_FTRE, HANDOFF_TRACK
 from .tsg import Predictor
 
 
-#: Why the ROS graph refuses the ancillary tube (its controller node does not hold a plan yet).
-OFFLINE_ONLY = ("tsg.tube: ancillary flies offline only (cikan mission --offline, cikan montecarlo, "
-                "cikan coverage): the ROS controller does not track the accepted prediction yet")
-
-
 @dataclass(frozen=True)
 class Plan:
     """An accepted prediction to track: from control step ``k0`` on, x_p (J, 6) km, km/s (ECI)

@@ -132,16 +132,37 @@ class ClosedLoop(Schedule):
         #: anchor alike, whichever process computes the command.
         self.anchor = ChiefAnchor(predictor)
         #: The ancillary tube's tracking law and the plan it tracks (``tsg.tube`` ancillary under
-        #: robust Verify; offline only): None otherwise.
+        #: robust Verify): None otherwise.
         self.ancillary = AncillaryLaw(predictor) if predictor.ancillary else None
         self.plan: Plan | None = None
+        #: The chief model the plans are verified with: anchored as the library's governors anchor
+        #: theirs (:meth:`observe`), so the plan is the rollout the governor's Verify accepted,
+        #: bit for bit, whichever process builds it (the controller node holds its own).
+        self.plan_anchor = ChiefAnchor(predictor)
+        #: Shifts whose plan did not pass robust Verify here (a governor that anchors otherwise):
+        #: the plan in force was kept.
+        self.plans_refused = 0
 
-    def take_effect(self, k: int, tau: float, x_d: NDArray, predictor: Predictor) -> None:
-        """A new shift tau takes effect at step k, verified by ``predictor`` (the governor's
-        anchored model) from the measured deputy x_d: under the ancillary tube its accepted
-        rollout becomes the plan the command tracks; otherwise nothing to do."""
-        if self.ancillary is not None:
-            self.plan = Plan.accepted(predictor, k, self.time(k), tau, x_d)
+    def observe(self, k: int, x_c: NDArray, tau_prev: float | None) -> None:
+        """Step k's measured chief x_c, with the shift in force before it (None at the first
+        instant): anchor the plans' chief model where the library's governors anchor theirs, at
+        the first instant and at each update that predicts (tau_prev != 0)."""
+        if self.ancillary is not None and (tau_prev is None or (self.update_due(k) and tau_prev != 0.0)):
+            self.plan_anchor(x_c, self.time(k))
+
+    def take_effect(self, k: int, tau: float, x_d: NDArray) -> bool:
+        """A new shift tau takes effect at step k from the measured deputy x_d: under the ancillary
+        tube the rollout robust Verify accepts for it becomes the plan the command tracks (built
+        here with :attr:`plan_anchor`). False when that rollout does not pass (the plan in force is
+        kept and counted in :attr:`plans_refused`); True otherwise, and without the ancillary tube."""
+        if self.ancillary is None:
+            return True
+        try:
+            self.plan = Plan.accepted(self.plan_anchor.current, k, self.time(k), tau, x_d)
+        except StateError:
+            self.plans_refused += 1
+            return False
+        return True
 
     def decide(self, governor: Governor, k: int, x_d: NDArray, x_c: NDArray,
                tau_prev: float | None) -> UpdateRecord | None:
@@ -441,6 +462,7 @@ def run_mission(governor: Governor, x_d0: NDArray, seed: int | None = None,
             seen_d[k] = truth.measure_deputy(k, x)[0]
             seen_c[k] = truth.measure_chief(k)
             x_seen, xc_seen = through_si(seen_d[k]), through_si(seen_c[k])
+            loop.observe(k, xc_seen, tau)
             rec = loop.decide(governor, k, x_seen, xc_seen, tau)
             if rec is not None:
                 if first is None:
@@ -449,7 +471,7 @@ def run_mission(governor: Governor, x_d0: NDArray, seed: int | None = None,
                     updates.append(rec)
                     update_t.append(float(t[k]))
                 if rec.tau_s != tau:
-                    loop.take_effect(k, rec.tau_s, x_seen, governor.anchor.current)
+                    loop.take_effect(k, rec.tau_s, x_seen)
                 tau = rec.tau_s
             x_d[k] = x
             taus[k] = tau

@@ -23,8 +23,6 @@ from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from sensor_msgs.msg import TimeReference
 
-from cikan_ros.ancillary import OFFLINE_ONLY as ANCILLARY_OFFLINE_ONLY
-from cikan_ros.errors import ConfigError
 from cikan_ros.mission import ClosedLoop
 from cikan_ros.ros import cdr, convert as cv
 from cikan_ros.ros.graph import QOS_STREAM, Readiness, WaitDeadline, qos_for, run_node
@@ -50,8 +48,6 @@ class ControllerNode(Node):
         lost = float(p["controller.lost_deadline_s"])
         peers, timeout = [str(n) for n in p["graph.peers"]], float(p["graph.startup_timeout_s"])
         pred = Predictor.from_config(cfg)
-        if pred.ancillary:
-            raise ConfigError(ANCILLARY_OFFLINE_ONLY)
         self.loop = ClosedLoop(pred)
         x0 = pred.orbit.state(0.0)
         self.loop.command(0, 0.0, x0, x0)  # load the compiled kernels now (the anchor stays put)
@@ -155,10 +151,23 @@ class ControllerNode(Node):
         self.command(stamp, entry["x"], entry["xc"], self.tau, PATH_HOLD)
 
     def command(self, stamp: int, x_d: Any, x_c: Any, tau: float, source: str) -> None:
-        """u toward x_v = x_c(t_k + tau) (x_c the measured chief), published stamped t_k."""
+        """u toward x_v = x_c(t_k + tau) (x_c the measured chief), published stamped t_k. Under the
+        ancillary tube a new shift's accepted rollout becomes the plan the command tracks
+        (``ClosedLoop.take_effect``, the offline loop's); one whose rollout does not pass robust
+        Verify here is not flown: the shift in force holds, with a diagnostic."""
         self.wait.stop()
         self.waiting = None
-        u = self.loop.command(self.timeline.step(stamp), tau, x_d, x_c)
+        k = self.timeline.step(stamp)
+        self.loop.observe(k, x_c, self.tau)
+        if tau != self.tau and not self.loop.take_effect(k, tau, x_d):
+            text = (f"the plan of time shift {tau} s does not pass robust Verify from this step's state: "
+                    "holding the shift in force")
+            self.get_logger().warning(text)
+            self.diag("warn", text, stamp, {"event": "plan-refused", "tau_s": tau})
+            if self.tau is None:
+                return
+            tau = self.tau
+        u = self.loop.command(k, tau, x_d, x_c)
         self.pub_accel.publish(self.accel_out(u, stamp))
         self.tau = tau
         self.last_stamp = stamp

@@ -270,3 +270,12 @@ def independent_check(x_d: np.ndarray, x_c: np.ndarray, alpha_deg: float = 20.0,
     near = pn <= gamma[0]
     h3 = np.linalg.norm(v, axis=1)[near] - gamma[1] * pn[near] - gamma[2]
     return float(h1n.max()) if h1n.size else -np.inf, float(h3.max()) if h3.size else -np.inf
+
+
+def tau_history(msgs: dict, n: int, stamps: np.ndarray) -> np.ndarray:
+    """tau in force at each recorded step (held forward where none was published)."""
+    by_stamp = shifts(msgs)
+    out = np.empty(n)
+    for k in range(n):
+        out[k] = by_stamp.get(int(stamps[k]), out[k - 1] if k else np.nan)
+    return out

@@ -16,7 +16,7 @@ from cikan_ros.mission import nominal_start, run_mission
 from cikan_ros.tsg import Predictor
 from cikan_ros.ros.launch import run_ros_mission
 from ros_helpers import (independent_check, isolated_ros, mcap_counts, ros_env, rosbags_messages, shifts, sim_steps,
-                         states)
+                         states, tau_history)
 
 __all__ = ["ros_env"]
 
@@ -28,15 +28,6 @@ def conventional(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, Path]:
     with pytest.MonkeyPatch.context() as mp, isolated_ros(tmp_path_factory.mktemp("env"), mp):
         metrics = run_ros_mission(load_config(), governor="conventional", bag=bag)
     return metrics, bag
-
-
-def tau_history(msgs: dict, n: int, stamps: np.ndarray) -> np.ndarray:
-    """tau in force at each recorded step (held forward where none was published)."""
-    by_stamp = shifts(msgs)
-    out = np.empty(n)
-    for k in range(n):
-        out[k] = by_stamp.get(int(stamps[k]), out[k - 1] if k else np.nan)
-    return out
 
 
 def test_lockstep_graph_equals_offline_loop(conventional: tuple[dict, Path]) -> None:

@@ -34,7 +34,6 @@ from typing import Any, Callable, Iterable, Iterator
 import yaml
 
 from ..config import Config
-from ..ancillary import OFFLINE_ONLY as ANCILLARY_OFFLINE_ONLY
 from ..errors import CikanError, ConfigError, MissionError
 from ..paths import shipped
 from ..progress import Bar
@@ -277,8 +276,7 @@ def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | Non
         raise CikanError(f"bag directory {bag_path} exists and is not empty")
     # The core caches the FTRE gain table on disk (cikan_ros.control.gain_table): filled here once,
     # every node then starts in a second with bit-identical gains.
-    if Predictor.from_config(cfg).ancillary:
-        raise ConfigError(ANCILLARY_OFFLINE_ONLY)
+    Predictor.from_config(cfg)
     workdir = Path(tempfile.mkdtemp(prefix="cikan_ros_"))
     params = {**node_parameters(governor, seed, bag_path.resolve(), stop_on_dock, cfg.mission.approach),
               **(node_params or {})}
