@@ -15,7 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cikan_ros.cli import main
-from cikan_ros.config import Side, load_config, scenario_names, scenario_overrides
+from cikan_ros.config import Side, load_config, scenario_names, scenario_overrides, truth_overrides
 from cikan_ros.constraints import h1_line_of_sight, h3_approach_velocity
 from cikan_ros.errors import ConfigError
 from cikan_ros.governor import ConventionalGovernor
@@ -247,6 +247,14 @@ def test_robust_verify_flies_its_own_models(tmp_path: Path) -> None:
     allowed = cfg.replace(**{"learned.foreign_model": True})
     assert flown_model_dir(allowed, "cikan") == tmp_path / "cikan"
     assert make_governor("cikan", allowed).foreign.startswith("trained on labels of nominal Verify")
+    # A model of the ball tube's labels flown under the ancillary tube is another Verify's (the
+    # shipped robust CIKAN): refused naming the tube, flown foreign when allowed.
+    shipped = load_config(**{**truth_overrides("realistic"), "tsg.robust": True, "tsg.tube": "ancillary"})
+    with pytest.raises(ModelFileError, match=r"tube.*\(differs: .*tsg\.tube"):
+        make_governor("cikan", shipped)
+    foreign = make_governor("cikan", shipped.replace(**{"learned.foreign_model": True})).foreign
+    assert foreign.endswith("controller R = 1e+07, ancillary tube) (differs: tsg.tube)"), foreign
+    assert make_governor("cikan", shipped.replace(**{"tsg.tube": "ball"})).foreign is None
     # A dataset of nominal labels does not train a robust model, and the other way round.
     meta = {"config": cfg.replace(**{"tsg.robust": False}).flat()}
     check_dataset_labels(meta, "d.parquet", cfg.replace(**{"tsg.robust": False}).flat())

@@ -162,6 +162,10 @@ def label_config(flat: Mapping[str, Any]) -> dict[str, Any]:
                            r_key: flat.get(r_key)}
     if robust:
         out.update({k: flat.get(k) for k in ROBUST_LABEL_KEYS})
+        # The tube sets which shifts robust Verify accepts (configurations before it: the ball's).
+        out["tsg.tube"] = flat.get("tsg.tube", "ball")
+        if out["tsg.tube"] == "ancillary":
+            out.update({k: flat.get(k) for k in ("tsg.ancillary_gamma", "tsg.ancillary_r_diag")})
     return out
 
 
@@ -172,8 +176,9 @@ def describe_labels(labels: Mapping[str, Any]) -> str:
     r = labels.get("control.robust_r_diag" if robust else "control.r_diag") or [math.nan]
     if not robust:
         return f"nominal Verify (controller R = {float(r[0]):g})"
+    tube = "" if labels.get("tsg.tube", "ball") == "ball" else f", {labels['tsg.tube']} tube"
     return (f"robust Verify (truth {labels.get('truth.name')} at scale {labels.get('truth.scale')}, "
-            f"controller R = {float(r[0]):g})")
+            f"controller R = {float(r[0]):g}{tube})")
 
 
 def label_mismatch(card: Mapping[str, Any], flat: Mapping[str, Any]) -> str | None:
