@@ -72,15 +72,16 @@ class AncillaryLaw:
 
     def command(self, plan: Plan, j: int, nu_v: float, x_d: NDArray) -> NDArray:
         """The tracking command (km/s^2, ECI) at the plan's sample j from the measured deputy."""
-        k_a = interpolate_gain(self.gains, nu_v)
-        u = plan.u_p[j] - k_a @ (np.asarray(x_d, dtype=float) - plan.x_p[j])
-        self.guard_saturations += bool(math.sqrt(float(u @ u)) > self.u_max)
-        return saturate(u, self.u_max)
+        return self.track(plan.u_p[j], plan.x_p[j], nu_v, x_d)
 
     def hold(self, nu_v: float, x_d: NDArray, x_v: NDArray) -> NDArray:
         """The tracking law holding the virtual target after a plan handed the truth to it:
-        -K_a(nu_v) (x_hat - x_v) (km/s^2, ECI), saturated only as a guard."""
+        -K_a(nu_v) (x_hat - x_v) (km/s^2, ECI)."""
+        return self.track(np.zeros(3), np.asarray(x_v, dtype=float), nu_v, x_d)
+
+    def track(self, u_ff: NDArray, x_ref: NDArray, nu_v: float, x_d: NDArray) -> NDArray:
+        """u_ff - K_a(nu_v) (x_hat - x_ref), saturated at u_max only as a guard (counted)."""
         k_a = interpolate_gain(self.gains, nu_v)
-        u = -(k_a @ (np.asarray(x_d, dtype=float) - np.asarray(x_v, dtype=float)))
+        u = u_ff - k_a @ (np.asarray(x_d, dtype=float) - x_ref)
         self.guard_saturations += bool(math.sqrt(float(u @ u)) > self.u_max)
         return saturate(u, self.u_max)

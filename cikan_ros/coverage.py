@@ -219,16 +219,16 @@ def markdown(sections: list[tuple[str, list[dict[str, Any]]]], command: str) -> 
         rand = next((s for s in summary if s["corner"] == "random"), None)
         flown = [s for s in corners_ or summary if s["flown"]]
         refused = sum(s["refused"] for s in summary)
+        violations = sum(s["violations"] for s in summary)
         if not flown:   # every start refused: nothing to compare
-            lines.append(f"| {title} | 0 / {len(corners_)} | - | - | - | - | - | - | {refused} | "
-                         f"{sum(s['violations'] for s in summary)} |")
+            lines.append(f"| {title} | 0 / {len(corners_)} | - | - | - | - | - | - | {refused} | {violations} |")
             continue
         worst = max(flown, key=lambda s: max(s["pos_ratio"], s["vel_ratio"]))
         ball = max(max(s["ball_pos_ratio"], s["ball_vel_ratio"]) for s in summary if s["flown"])
         rand_txt = f"{rand['pos_ratio']:.2f}, {rand['vel_ratio']:.2f}" if rand and rand["flown"] else "-"
         lines.append(f"| {title} | {sum(s['covered'] for s in corners_)} / {len(corners_)} | `{worst['corner']}` | "
                      f"{worst['pos_ratio']:.2f} | {worst['vel_ratio']:.2f} | {worst['worst_at']} | {rand_txt} | "
-                     f"{ball:.2f} | {refused} | {sum(s['violations'] for s in summary)} |")
+                     f"{ball:.2f} | {refused} | {violations} |")
     for title, summary in sections:
         lines += ["", f"## {title}", "", "| corner | flights | refused | pos / rho | vel / sigma | worst at | ball pos | ball vel | violations |",
                   "|---|---|---|---|---|---|---|---|---|"]

@@ -139,9 +139,6 @@ class ClosedLoop(Schedule):
         #: theirs (:meth:`observe`), so the plan is the rollout the governor's Verify accepted,
         #: bit for bit, whichever process builds it (the controller node holds its own).
         self.plan_anchor = ChiefAnchor(predictor)
-        #: Shifts whose plan did not pass robust Verify here (a governor that anchors otherwise):
-        #: the plan in force was kept.
-        self.plans_refused = 0
 
     def observe(self, k: int, x_c: NDArray, tau_prev: float | None) -> None:
         """Step k's measured chief x_c, with the shift in force before it (None at the first
@@ -153,14 +150,13 @@ class ClosedLoop(Schedule):
     def take_effect(self, k: int, tau: float, x_d: NDArray) -> bool:
         """A new shift tau takes effect at step k from the measured deputy x_d: under the ancillary
         tube the rollout robust Verify accepts for it becomes the plan the command tracks (built
-        here with :attr:`plan_anchor`). False when that rollout does not pass (the plan in force is
-        kept and counted in :attr:`plans_refused`); True otherwise, and without the ancillary tube."""
+        here with :attr:`plan_anchor`). False when that rollout does not pass (a governor that anchors
+        otherwise; the plan in force is kept); True otherwise, and without the ancillary tube."""
         if self.ancillary is None:
             return True
         try:
             self.plan = Plan.accepted(self.plan_anchor.current, k, self.time(k), tau, x_d)
         except StateError:
-            self.plans_refused += 1
             return False
         return True
 

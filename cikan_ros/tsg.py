@@ -47,8 +47,8 @@ from .errors import NoFeasibleShiftError, StateError
 from .orbit import (N_PARAMS, P_E, P_M0, P_MU, P_N, KeplerOrbit, check_states,
                     eccentric_anomaly_kernel, osculating_params_kernel, state_from_anomaly_kernel,
                     state_kernel, state_warm_kernel)
-from .robust import (HANDOFF_FTRE, R_GAMMA, R_ON, R_TUBE, R_ZETA, ancillary_start, ancillary_step, ancillary_terminal_ok,
-                     robust_params, robust_terminal_ok, tube_next, tube_ok, tube_start)
+from .robust import (HANDOFF_FTRE, R_GAMMA, R_ON, R_TUBE, R_ZETA, ancillary_start, ancillary_step,
+                     ancillary_terminal_ok, robust_params, robust_terminal_ok, tube_next, tube_ok, tube_start)
 from .units import ns_to_seconds
 from .units import seconds_to_ns as to_ns
 
@@ -197,8 +197,8 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
             if not robust:
                 return True
             if ancillary:
-                ok, ball_p, ball_v, handoff = ancillary_terminal_ok(xv, xc, cp, rp, math.sqrt(dp2), math.sqrt(dv2),
-                                                           rho, sig, ts)
+                ok, ball_p, ball_v, handoff = ancillary_terminal_ok(xv, xc, cp, rp, math.sqrt(dp2),
+                                                                    math.sqrt(dv2), rho, sig, ts)
             else:
                 ok, ball_p, ball_v = robust_terminal_ok(xv, xc, cp, rp, math.sqrt(dp2), math.sqrt(dv2),
                                                         big_r, big_s, linear, ts)
