@@ -22,10 +22,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from .config import ancillary_control_config
+from .config import ancillary_control_config, handoff_control_config
 from .control import gain_table, interpolate_gain, saturate
 from .errors import StateError
-from .robust import HANDOFF_FTRE, HANDOFF_TRACK
+from .robust import HANDOFF_FTRE, HANDOFF_TRACK, terminal_ball_after
 from .tsg import Predictor
 
 
@@ -42,6 +42,9 @@ class Plan:
     #: After the terminal sample the truth holds x_v with the tracking law (robust Verify's
     #: handoff, :data:`~cikan_ros.robust.HANDOFF_TRACK`), else the FTRE law flies.
     holds_target: bool = False
+    #: The rollout's terminal row (:data:`~cikan_ros.tsg.TRACE_WIDTH`,): x_v, the ball, the
+    #: handoff, the predicted chief and the terminal test's inputs (None: not recorded).
+    terminal: NDArray | None = None
 
     @classmethod
     def accepted(cls, predictor: Predictor, k: int, t: float, tau: float, x_d: NDArray) -> "Plan":
@@ -52,7 +55,20 @@ class Plan:
             raise StateError(f"the shift {tau} s taking effect at t = {t} s does not pass robust Verify: no plan")
         term = int(np.flatnonzero(trace[:, 8] >= HANDOFF_FTRE)[0])
         return cls(k, float(tau), trace[:term, :6].copy(), trace[:term, 9:12].copy(),
-                   bool(trace[term, 8] == HANDOFF_TRACK))
+                   bool(trace[term, 8] == HANDOFF_TRACK), trace[term].copy())
+
+    def certified_ball(self, predictor: Predictor, k: int) -> tuple[float, float] | None:
+        """The ball (km, km/s) about x_v that robust Verify's terminal test certifies for the
+        truth at control step k (:func:`~cikan_ros.robust.terminal_ball_after`), or None before
+        the terminal sample or without a recorded terminal row."""
+        n = k - self.k0 - len(self.x_p)
+        if self.terminal is None or n < 0:
+            return None
+        row = self.terminal
+        out = np.empty((n + 1, 2))
+        terminal_ball_after(row[:6], row[12:18], predictor.rparams, row[18], row[19], row[20], row[21],
+                            row[6], row[7], row[8], predictor.config.control.period_s, n, out)
+        return float(out[n, 0]), float(out[n, 1])
 
     def sample(self, k: int) -> int | None:
         """The plan's sample j at control step k, or None once the plan is done (terminal)."""
@@ -66,6 +82,9 @@ class AncillaryLaw:
     def __init__(self, predictor: Predictor) -> None:
         cfg = predictor.config
         self.gains = gain_table(predictor.orbit, ancillary_control_config(cfg))
+        #: The FTRE law the truth is handed to at a plan's terminal sample (robust Verify's
+        #: :data:`~cikan_ros.robust.HANDOFF_FTRE`).
+        self.handoff_gains = gain_table(predictor.orbit, handoff_control_config(cfg))
         self.u_max = cfg.control.u_max_kmps2
         #: Commands the last guard saturated (robust Verify's headroom check says: none).
         self.guard_saturations = 0

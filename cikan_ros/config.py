@@ -153,6 +153,13 @@ class TSGConfig:
     tube: str = "ball"
     ancillary_gamma: float = 0.5
     ancillary_r_diag: tuple[float, ...] = (1e10, 1e10, 1e10)
+    #: LQ control weight of the FTRE law the ancillary tube hands the truth to at the terminal
+    #: sample (docs/robustness.md, "Docking, certified"): stiffer than the robust controller, so
+    #: the ball it certifies at the chief fits the docking test.
+    ancillary_handoff_r_diag: tuple[float, ...] = (1e5, 1e5, 1e5)
+    #: The ancillary tube also bounds the truth between samples (docs/robustness.md, "Between
+    #: samples, derived"); false: at the samples only, as the ball tube.
+    ancillary_between: bool = True
 
     def __post_init__(self) -> None:
         _check(isinstance(self.robust, bool), "tsg.robust", self.robust, "must be true or false")
@@ -163,11 +170,17 @@ class TSGConfig:
         _check(self.prediction_gravity in ("auto",) + GRAVITY_MODELS, "tsg.prediction_gravity",
                self.prediction_gravity, f"must be one of {('auto',) + GRAVITY_MODELS}")
         _check(self.tube in ("ball", "ancillary"), "tsg.tube", self.tube, "must be 'ball' or 'ancillary'")
+        _check(isinstance(self.ancillary_between, bool), "tsg.ancillary_between", self.ancillary_between,
+               "must be true or false")
         _check(math.isfinite(self.ancillary_gamma) and 0.0 < self.ancillary_gamma <= 1.0,
                "tsg.ancillary_gamma", self.ancillary_gamma, "must lie in (0, 1]")
         object.__setattr__(self, "ancillary_r_diag", tuple(float(r) for r in self.ancillary_r_diag))
         _check(len(self.ancillary_r_diag) == 3 and all(math.isfinite(r) and r > 0 for r in self.ancillary_r_diag),
                "tsg.ancillary_r_diag", self.ancillary_r_diag, "must be 3 finite weights > 0")
+        object.__setattr__(self, "ancillary_handoff_r_diag", tuple(float(r) for r in self.ancillary_handoff_r_diag))
+        _check(len(self.ancillary_handoff_r_diag) == 3
+               and all(math.isfinite(r) and r > 0 for r in self.ancillary_handoff_r_diag),
+               "tsg.ancillary_handoff_r_diag", self.ancillary_handoff_r_diag, "must be 3 finite weights > 0")
         for name in ("sample_period_s", "terminal_pos_km", "terminal_vel_kmps", "tolerance_s",
                      "initial_window_s", "initial_grid_s", "update_period_s"):
             _positive(f"tsg.{name}", getattr(self, name))
@@ -429,6 +442,13 @@ def ancillary_control_config(cfg: "Config") -> ControlConfig:
     FTRE DARE with the LQ weight ``tsg.ancillary_r_diag`` (docs/robustness.md, "The ancillary
     tube")."""
     return dataclasses.replace(cfg.control, r_diag=cfg.tsg.ancillary_r_diag)
+
+
+def handoff_control_config(cfg: "Config") -> ControlConfig:
+    """The FTRE law the ancillary tube hands the truth to at the terminal sample: the FTRE DARE
+    with the LQ weight ``tsg.ancillary_handoff_r_diag`` (docs/robustness.md, "Docking,
+    certified"; set it to ``control.robust_r_diag`` to hand over to the robust controller)."""
+    return dataclasses.replace(cfg.control, r_diag=cfg.tsg.ancillary_handoff_r_diag)
 
 
 #: Update rules of learned governors: the default ("keep", SPEC §8 beyond the paper) and the

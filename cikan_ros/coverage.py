@@ -9,7 +9,8 @@ the prediction that Verify made when it accepted the shift:
 - before the terminal sample (where Verify accepted the terminal set): |p_truth - p_pred| / rho_j
   and |v_truth - v_pred| / sigma_j;
 - from the terminal sample on: |x_truth - x_v| against the terminal ball's radii, x_v the
-  virtual target the controller tracks.
+  virtual target the controller tracks (under the ancillary tube, the ball certified for that
+  sample, which shrinks as the loop settles: robust.terminal_ball_after).
 
 A ratio above 1 is a sample where the tube is not a bound (docs/robustness.md, "Coverage").
 """
@@ -27,7 +28,7 @@ from .config import Config
 from .errors import ConfigError
 from .governor import PATH_KEEP, Governor, UpdateRecord
 from .mission import ClosedLoop, run_mission, sample_start, through_si
-from .robust import HANDOFF_FTRE
+from .robust import HANDOFF_FTRE, terminal_ball_after
 from .registry import make_governor
 from .truth import Truth
 
@@ -125,11 +126,19 @@ def held_shift_coverage(cfg: Config, seed: int, governor: str = "conventional") 
     seen_c = result.x_c if result.x_c_seen is None else result.x_c_seen
     k_end = len(result.t) - 1
     ball = np.full((max(0, k_end + 1 - term), 2), math.nan)
+    # The terminal test's ball; under the ancillary tube the ball it certifies for each later
+    # sample, which shrinks as the loop settles (robust.terminal_ball_after: the docking test).
+    radii = np.broadcast_to(trace[term, 6:8], ball.shape)
+    if pred.ancillary and len(ball):
+        row = trace[term]
+        radii = np.empty_like(ball)
+        terminal_ball_after(row[:6], row[12:18], pred.rparams, row[18], row[19], row[20], row[21], row[6],
+                            row[7], row[8], cfg.control.period_s, len(ball) - 1, radii)
     for i, k in enumerate(range(term, k_end + 1)):
         t = float(result.t[k])
         x_v = loop.anchor(through_si(seen_c[k]), t).orbit.state(t + tau)
-        ball[i, 0] = np.linalg.norm(result.x_d[k, :3] - x_v[:3]) / trace[term, 6]
-        ball[i, 1] = np.linalg.norm(result.x_d[k, 3:] - x_v[3:]) / trace[term, 7]
+        ball[i, 0] = np.linalg.norm(result.x_d[k, :3] - x_v[:3]) / radii[i, 0]
+        ball[i, 1] = np.linalg.norm(result.x_d[k, 3:] - x_v[3:]) / radii[i, 1]
     bp, bp_at = _max_at(ball[:, 0], term)
     bv, bv_at = _max_at(ball[:, 1], term)
     worst_at = bp_at if not math.isfinite(bv) or (math.isfinite(bp) and bp >= bv) else bv_at
@@ -208,7 +217,8 @@ def markdown(sections: list[tuple[str, list[dict[str, Any]]]], command: str) -> 
              f"Regenerate: `{command}` (docs/robustness.md, \"Coverage\"). Each flight holds the first-instant",
              "shift of the conventional TSG under robust Verify for the whole mission and compares the truth",
              "with Verify's prediction: position and velocity error over the tube radii rho_j, sigma_j up to",
-             "the terminal sample, then the distance to the virtual target over the terminal ball. A ratio",
+             "the terminal sample, then the distance to the virtual target over the terminal ball (the ancillary",
+             "tube: the ball certified for that sample, which shrinks as the loop settles). A ratio",
              "above 1 is a sample where the tube is not a bound (a corner counts as covered when some of its",
              f"flights flew and every ratio is <= 1 to {ROUNDING:g}, the rounding of the ECI positions the errors",
              "are measured from); \"-\": every flight refused.", "",

@@ -160,6 +160,14 @@ class ClosedLoop(Schedule):
             return False
         return True
 
+    def certified_ball(self, k: int) -> tuple[float, float] | None:
+        """Under the ancillary tube with tau = 0 in force: the ball (km, km/s) about the chief
+        robust Verify's terminal test certifies for the truth at step k (the docking test it
+        guarantees: :meth:`Plan.certified_ball`); None otherwise."""
+        if self.plan is None or self.plan.tau != 0.0:
+            return None
+        return self.plan.certified_ball(self.plan_anchor.current, k)
+
     def decide(self, governor: Governor, k: int, x_d: NDArray, x_c: NDArray,
                tau_prev: float | None) -> UpdateRecord | None:
         """The governor's part of step k: the first-instant search while no shift is in force
@@ -183,6 +191,7 @@ class ClosedLoop(Schedule):
                 return self.ancillary.command(self.plan, j, float(nu_v), x_d)
             if self.plan.holds_target:
                 return self.ancillary.hold(float(nu_v), x_d, x_v)
+            return ftre_control(self.ancillary.handoff_gains, float(nu_v), x_d, x_v, self.config.control.u_max_kmps2)
         return ftre_control(pred.gains, float(nu_v), x_d, x_v, self.config.control.u_max_kmps2)
 
 
@@ -221,6 +230,9 @@ class MissionResult:
     between: NDArray | None = None
     #: Commands the ancillary tube's last guard saturated (None: not the ancillary tube).
     guard_saturations: int | None = None
+    #: The ball (km, km/s) about the chief robust Verify certified for the final step once tau = 0
+    #: took effect under the ancillary tube (:meth:`ClosedLoop.certified_ball`); None otherwise.
+    dock_certified: tuple[float, float] | None = None
 
     @property
     def thrust_limit_factor(self) -> float:
@@ -293,6 +305,9 @@ class MissionResult:
             "robust": cfg.tsg.robust,
             **({"corner": cfg.truth.corner} if cfg.truth.draw == "corner" else {}),
             **({"guard_saturations": self.guard_saturations} if self.guard_saturations is not None else {}),
+            **({"dock_certified_m": self.dock_certified[0] * 1e3, "dock_certified_mps": self.dock_certified[1] * 1e3,
+                "docked_certified": bool(dist[-1] <= self.dock_certified[0] and speed[-1] <= self.dock_certified[1])}
+               if self.dock_certified is not None else {}),
         }
 
     def update_states(self, active_only: bool = True) -> list["UpdateState"]:
@@ -487,4 +502,5 @@ def run_mission(governor: Governor, x_d0: NDArray, seed: int | None = None,
     # judged in the truth's configuration: the governor's, and how the truth drew its errors
     return MissionResult(truth.config, governor.name, t, x_d, x_c, u, taus, m, first, np.array(update_t),
                          updates, None if nominal else seen_d, None if nominal else seen_c, limit,
-                         between, None if loop.ancillary is None else loop.ancillary.guard_saturations)
+                         between, None if loop.ancillary is None else loop.ancillary.guard_saturations,
+                         loop.certified_ball(n_steps))

@@ -39,7 +39,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .config import (Config, ControlConfig, TruthConfig, ancillary_control_config, control_config,
-                     prediction_gravity)
+                     handoff_control_config, prediction_gravity)
 from .constraints import (C_APEX, C_COS_ALPHA, C_GAMMA1, C_GAMMA2, C_GAMMA3, C_PORT, C_UMAX, los_terms_kernel,
                           rel_norms_kernel)
 from .control import B_INPUT, gain_table, zoh_discretise
@@ -61,7 +61,10 @@ ANCILLARY_KEYS = ("lam", "kp", "kv", "cpe", "cve") + tuple(
 (RA_LAM, RA_KP, RA_KV, RA_CPE, RA_CVE, RA_C0PP, RA_C0PV, RA_C0VP, RA_C0VV, RA_DPP, RA_DPV, RA_DVP,
  RA_DVV, RA_GPP, RA_GPV, RA_GVP, RA_GVV, RA_HPP, RA_HPV, RA_HVP, RA_HVV, RA_CNPP, RA_CNPV, RA_CNVP,
  RA_CNVV) = range(44, 44 + len(ANCILLARY_KEYS))
-N_RPARAMS = 44 + len(ANCILLARY_KEYS)
+#: The ancillary tube's check of the truth between samples (``tsg.ancillary_between``,
+#: :func:`interval_ok`): on when 1.
+R_BETWEEN = 44 + len(ANCILLARY_KEYS)
+N_RPARAMS = R_BETWEEN + 1
 
 #: Powers of the closed-loop matrix scanned for the constants C (lam^200 < 1e-11 here).
 N_POWERS = 200
@@ -178,7 +181,10 @@ def robust_params(cfg: Config, orbit: KeplerOrbit) -> NDArray:
     truth: TruthConfig = cfg.truth
     bias = truth.bound("thrust_bias_max")
     point = math.radians(truth.bound("thrust_pointing_max_deg"))
-    tc = tube_constants(orbit, control_config(cfg), bias, point)
+    # Under the ancillary tube the FTRE constants are those of the law the truth is handed to at
+    # the terminal sample (its only use there: ancillary_ftre_handoff).
+    ftre = handoff_control_config(cfg) if cfg.tsg.tube == "ancillary" else control_config(cfg)
+    tc = tube_constants(orbit, ftre, bias, point)
     rp[R_ON] = 1.0
     rp[R_LAM] = tc["lam"]
     for name, idx in (("c0pp", R_C0PP), ("c0pv", R_C0PV), ("c0vp", R_C0VP), ("c0vv", R_C0VV),
@@ -223,6 +229,7 @@ def robust_params(cfg: Config, orbit: KeplerOrbit) -> NDArray:
         rp[R_GAMMA] = cfg.tsg.ancillary_gamma
         for i, name in enumerate(ANCILLARY_KEYS):
             rp[RA_LAM + i] = ta[name]
+        rp[R_BETWEEN] = 1.0 if cfg.tsg.ancillary_between else 0.0
     rp.setflags(write=False)
     return rp
 
@@ -514,11 +521,7 @@ def ancillary_step(rp: NDArray, u_max: float, ts: float, x: NDArray, xc: NDArray
     rr = rng + rho
     bp, bv, dp, dv = nav_terms(rp, rr, vrel + sig, ts)
     un = math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
-    dev_p = min(r1 + rp[RA_HPP] * bp + rp[RA_HPV] * bv + rp[RA_GPP] * dp + rp[RA_GPV] * dv,
-                rho + bp)
-    dev_v = min(s1 + rp[RA_HVP] * bp + rp[RA_HVV] * bv + rp[RA_GVP] * dp + rp[RA_GVV] * dv,
-                sig + bv)
-    if un + rp[RA_KP] * dev_p + rp[RA_KV] * dev_v > u_max:
+    if ancillary_command_bound(rp, ts, x, xc, u, rng, rho, sig, r1, s1) > u_max:
         return rho, sig, r1, s1, r2, s2, False
     eta = rp[R_EPSU] * un + rp[R_DMAX] + rp[R_KG] * rr
     lam = rp[RA_LAM]
@@ -529,6 +532,20 @@ def ancillary_step(rp: NDArray, u_max: float, ts: float, x: NDArray, xc: NDArray
     rho = min(r1 + rp[RA_GPP] * bp + rp[RA_GPV] * bv, r2)
     sig = min(s1 + rp[RA_GVP] * bp + rp[RA_GVV] * bv, s2)
     return rho, sig, r1, s1, r2, s2, True
+
+
+@nb.njit(cache=True)
+def ancillary_command_bound(rp: NDArray, ts: float, x: NDArray, xc: NDArray, u: NDArray, rng: float,
+                            rho: float, sig: float, r1: float, s1: float) -> float:
+    """The bound (km/s^2) of the truth's command u_p - K_a (e + delta) at sample j of the ancillary
+    tube (:func:`ancillary_step`): |u_p| + |K_a,p| Dp + |K_a,v| Dv."""
+    vrel = math.sqrt((x[3] - xc[3]) ** 2 + (x[4] - xc[4]) ** 2 + (x[5] - xc[5]) ** 2)
+    bp, bv, dp, dv = nav_terms(rp, rng + rho, vrel + sig, ts)
+    dev_p = min(r1 + rp[RA_HPP] * bp + rp[RA_HPV] * bv + rp[RA_GPP] * dp + rp[RA_GPV] * dv,
+                rho + bp)
+    dev_v = min(s1 + rp[RA_HVP] * bp + rp[RA_HVV] * bv + rp[RA_GVP] * dp + rp[RA_GVV] * dv,
+                sig + bv)
+    return math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]) + rp[RA_KP] * dev_p + rp[RA_KV] * dev_v
 
 
 #: How the truth flies on from the terminal sample of an ancillary-tube rollout (the code robust
@@ -574,7 +591,10 @@ def ancillary_ftre_handoff(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, d
     if not ok:
         return False, 0.0, 0.0
     bp, bv, _, _ = nav_terms(rp, rng + ball_p, vel + ball_v, ts)
-    if rp[R_KP] * (ball_p + bp) + rp[R_KV] * (ball_v + bv) >= cp[C_UMAX]:
+    u_bound = rp[R_KP] * (ball_p + bp) + rp[R_KV] * (ball_v + bv)
+    if u_bound >= cp[C_UMAX]:
+        return False, 0.0, 0.0
+    if rp[R_BETWEEN] != 0.0 and not ball_between_ok(xv, xc, cp, rp, ball_p, ball_v, u_bound, ts):
         return False, 0.0, 0.0
     return True, ball_p, ball_v
 
@@ -613,7 +633,184 @@ def ancillary_track_handoff(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, 
     else:
         return False, 0.0, 0.0  # no fixed point: the navigation error grows faster than the ball
     bp, bv, _, _ = nav_terms(rp, rng + ball_p, vel + ball_v, ts)
-    if rp[RA_KP] * (ball_p + bp) + rp[RA_KV] * (ball_v + bv) >= cp[C_UMAX]:
+    u_bound = rp[RA_KP] * (ball_p + bp) + rp[RA_KV] * (ball_v + bv)
+    if u_bound >= cp[C_UMAX]:
         return False, 0.0, 0.0
     ok = robust_h1_ok(xv, xc, cp, rp[R_SINA], ball_p) and robust_h3_ok(xv, xc, cp, ball_p, ball_v)
+    if ok and rp[R_BETWEEN] != 0.0:
+        ok = ball_between_ok(xv, xc, cp, rp, ball_p, ball_v, u_bound, ts)
     return ok, ball_p, ball_v
+
+
+# -- between samples (``tsg.ancillary_between``; docs/robustness.md, "Between samples, derived") --
+#
+# The constraints are checked on the tube at the samples; the truth moves on for Ts between them
+# under a command held constant. Over one interval its relative position p = x_d - x_c obeys
+# |p''| <= acc (thrust through the thruster map, the disturbance, the gravity difference), so it
+# lies within acc s (Ts - s) / 2 <= acc Ts^2 / 8 of the chord between its two sample positions.
+# The cone turns with the chief's velocity: in a frame that carries the cone's axis (angular
+# velocity w = v_c x a_c / |v_c|^2, the axis transported without twist), q = R^T p obeys
+# |q''| <= |p''| + 2 |w| |p'| + (|w|^2 + |w'|) |p|: the same chord bound with that Q. The depth
+# of a point in the cone (its distance to the surface, :func:`sample_excess`) is concave, so a
+# chord whose two ends are at depth >= Q Ts^2 / 8 keeps the truth in the cone; the apex ball does
+# not turn, and a chord whose two ends are within a - acc Ts^2 / 8 of the chief stays in it. An
+# interval that leaves one region for the other must stay in one of them by the motion bound from
+# one of its ends (|p(s) - p_j| <= |v_j| s + acc s^2 / 2).
+
+@nb.njit(cache=True)
+def frame_rates(xc: NDArray, rp: NDArray, ts: float) -> tuple[float, float]:
+    """Bounds of the turn rate |w| (rad/s) of the chief's velocity direction (the cone's axis)
+    and of its derivative |w'| (rad/s^2) over one sample from the chief state xc (6,):
+    w = v x a / |v|^2, |w| <= |a| / |v|, |w'| <= |a'| / |v| + 2 |a|^2 / |v|^2 with |a| <= 1.01 mu
+    / r^2 and |a'| <= 2.02 mu |v| / r^3 (two-body and J2), at the lowest radius and speed the
+    chief can reach within ts."""
+    r = math.sqrt(xc[0] * xc[0] + xc[1] * xc[1] + xc[2] * xc[2])
+    v = math.sqrt(xc[3] * xc[3] + xc[4] * xc[4] + xc[5] * xc[5])
+    r_low = max(r - v * ts, 6000.0)
+    acc = 0.5 * rp[R_GRAD] / (r_low * r_low)  # rp[R_GRAD] = 2.02 mu
+    v_low = max(v - acc * ts, 1e-3)
+    w = acc / v_low
+    return w, rp[R_GRAD] / r_low ** 3 + 2.0 * w * w
+
+
+@nb.njit(cache=True)
+def sample_excess(x: NDArray, xc: NDArray, cp: NDArray, sin_a: float, rho: float) -> tuple[float, float]:
+    """(cone excess, apex excess), km, of the tube of radius rho around the deputy x (chief xc):
+    the depth of its shallowest position in the LoS cone, |p| sin(alpha - theta) - rho (negative:
+    part of the tube is outside), and the room it leaves inside the apex ball, a - |p| - rho."""
+    dot, pn, vn = los_terms_kernel(x, xc, cp[C_PORT])
+    if pn == 0.0:
+        return -rho, cp[C_APEX] - rho
+    c = -dot / (vn * pn)
+    s = math.sqrt(max(0.0, 1.0 - c * c))
+    return pn * (sin_a * c - cp[C_COS_ALPHA] * s) - rho, cp[C_APEX] - pn - rho
+
+
+@nb.njit(cache=True)
+def interval_ok(cp: NDArray, ts: float, cone0: float, apex0: float, r0: float, v0: float,
+                cone1: float, apex1: float, r1: float, v1: float, rho0: float, rho1: float,
+                acc: float, w: float, wdot: float) -> bool:
+    """h1 and h3 hold on the truth strictly between samples 0 and 1 of an interval: cone and apex
+    excess (:func:`sample_excess`), predicted range r (km) and the truth's largest relative speed
+    v (km/s) at each end, the tube radii rho, the bound acc (km/s^2) of the truth's relative
+    acceleration over the interval and the cone's turn rates w, wdot (:func:`frame_rates`)."""
+    vmax = max(v0, v1) + 0.5 * acc * ts  # |p'(s)| from the nearer end
+    rmax = max(r0 + rho0, r1 + rho1) + acc * ts * ts / 8.0
+    q = acc + 2.0 * w * vmax + (w * w + wdot) * rmax
+    h1 = (min(cone0, cone1) >= q * ts * ts / 8.0  # the chord in the turning cone
+          or min(apex0, apex1) >= acc * ts * ts / 8.0  # the chord in the apex ball
+          or apex0 >= v0 * ts + 0.5 * acc * ts * ts or apex1 >= v1 * ts + 0.5 * acc * ts * ts
+          or cone0 >= (v0 + w * rmax) * ts + 0.5 * q * ts * ts
+          or cone1 >= (v1 + w * rmax) * ts + 0.5 * q * ts * ts)
+    if not h1:
+        return False
+    # h3: the speed from the nearer end against the range from either end (each a lower bound
+    # of the range at every instant of the interval)
+    rmin = max(r0 - rho0 - v0 * ts - 0.5 * acc * ts * ts, r1 - rho1 - v1 * ts - 0.5 * acc * ts * ts, 0.0)
+    return rmin > cp[C_GAMMA1] or vmax <= cp[C_GAMMA2] * rmin + cp[C_GAMMA3]
+
+
+@nb.njit(cache=True)
+def truth_acceleration(rp: NDArray, u_bound: float, r_max: float, r_chief: float) -> float:
+    """A bound (km/s^2) of the truth's relative acceleration for a command of norm <= u_bound:
+    the thruster map's gain (<= 1 + eps_u), the disturbance and the gravity difference over a
+    range <= r_max at a chief radius r_chief (gradient <= 2.02 mu / r^3 there)."""
+    return ((1.0 + rp[R_EPSU]) * u_bound + rp[R_DMAX]
+            + rp[R_GRAD] / max(r_chief - r_max, 6000.0) ** 3 * r_max)
+
+
+@nb.njit(cache=True)
+def ball_between_ok(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, ball_p: float, ball_v: float,
+                    u_bound: float, ts: float) -> bool:
+    """After the terminal sample: the truth, within (ball_p, ball_v) of the virtual target x_v at
+    every sample under a command of norm <= u_bound, keeps h1 and h3 between the samples too: its
+    error from x_v lies within acc Ts^2 / 8 of the chord of two points of the ball (the ball is
+    convex) and its speed within acc Ts / 2 of the nearer sample's; in the turning cone the chord
+    bound takes Q (:func:`interval_ok`). Judged at the terminal sample's geometry, as the ball."""
+    rng = math.sqrt((xv[0] - xc[0]) ** 2 + (xv[1] - xc[1]) ** 2 + (xv[2] - xc[2]) ** 2)
+    vel = math.sqrt((xv[3] - xc[3]) ** 2 + (xv[4] - xc[4]) ** 2 + (xv[5] - xc[5]) ** 2)
+    r_chief = math.sqrt(xc[0] * xc[0] + xc[1] * xc[1] + xc[2] * xc[2])
+    acc = truth_acceleration(rp, u_bound, rng + ball_p, r_chief)
+    w, wdot = frame_rates(xc, rp, ts)
+    vmax = vel + ball_v + 0.5 * acc * ts
+    q = acc + 2.0 * w * vmax + (w * w + wdot) * (rng + ball_p + acc * ts * ts / 8.0)
+    return (robust_h1_ok(xv, xc, cp, rp[R_SINA], ball_p + q * ts * ts / 8.0)
+            and robust_h3_ok(xv, xc, cp, ball_p + acc * ts * ts / 8.0, ball_v + 0.5 * acc * ts))
+
+
+# -- the terminal ball over time (docking: docs/robustness.md, "Docking, certified") ------------
+
+@nb.njit(cache=True)
+def terminal_ball_after(xv: NDArray, xc: NDArray, rp: NDArray, dp: float, dv: float, rho: float,
+                        sig: float, ball_p: float, ball_v: float, handoff: float, ts: float, n: int,
+                        out: NDArray) -> None:
+    """The ball (km, km/s) about x_v that the ancillary tube's terminal test certifies m = 0 .. n
+    samples after its terminal sample, into ``out`` (n + 1, 2); the truth was within (rho, sigma)
+    of the prediction there, the prediction within (dp, dv) of x_v, and the test accepted the
+    ball (ball_p, ball_v) (:func:`ancillary_terminal_ok`).
+
+    The terminal test bounds every later sample by that one ball, max(R_0, R_inf) (R_0 the handed-over
+    transient, R_inf its recursion's fixed point). The recursion R_(m+1) = lam R_m + F_m gives more:
+    R_m <= lam^m R_0 + (1 - lam^m) F / (1 - lam) with F bounding the forcing. The forcing (the
+    navigation error's bounds and the thruster error of the command) grows with the range, which
+    the ball itself bounds, so the bound is tightened by iteration: a sequence B_m that bounds the
+    truth at every m (first the terminal test's ball) bounds the ranges at which the next
+    sequence's forcing is taken, and that sequence bounds the truth too.
+
+    - FTRE handoff (:data:`HANDOFF_FTRE`): B_m = P_m + R_m + G b, with the prediction's own
+      transient P_m <= min(E (dp, dv), lam^m C0 (dp, dv)) (C0 includes the nominal loop's) and
+      the forcing D Delta + C_e eta (``realistic``; C_n b and no offset under ``filter``), as
+      :func:`robust_terminal_ok`;
+    - tracking handoff (:data:`HANDOFF_TRACK`): B_m = R_m with R_0 = C0 (rho + dp, sigma + dv) and
+      the forcing C_n b + C_e eta of the tracking loop, as :func:`ancillary_track_handoff`.
+    """
+    rng = math.sqrt((xv[0] - xc[0]) ** 2 + (xv[1] - xc[1]) ** 2 + (xv[2] - xc[2]) ** 2)
+    vel = math.sqrt((xv[3] - xc[3]) ** 2 + (xv[4] - xc[4]) ** 2 + (xv[5] - xc[5]) ** 2)
+    ftre = handoff == HANDOFF_FTRE
+    jump = rp[R_NJUMP] != 0.0
+    if ftre:
+        lam = rp[R_LAM]
+        bp, bv, _, _ = nav_terms(rp, rng + rho, vel + sig, ts)
+        r0, s0 = loop_takes_over(rp, rho + rp[R_GPP] * bp + rp[R_GPV] * bv,
+                                 sig + rp[R_GVP] * bp + rp[R_GVV] * bv)
+        p_cap, v_cap = rp[R_EPP] * dp + rp[R_EPV] * dv, rp[R_EVP] * dp + rp[R_EVV] * dv
+        p_dec, v_dec = rp[R_C0PP] * dp + rp[R_C0PV] * dv, rp[R_C0VP] * dp + rp[R_C0VV] * dv
+    else:
+        lam = rp[RA_LAM]
+        r0 = rp[RA_C0PP] * (rho + dp) + rp[RA_C0PV] * (sig + dv)
+        s0 = rp[RA_C0VP] * (rho + dp) + rp[RA_C0VV] * (sig + dv)
+        p_cap = v_cap = p_dec = v_dec = 0.0
+    for m in range(n + 1):  # the terminal test's own ball bounds every sample: the first sequence
+        out[m, 0] = ball_p
+        out[m, 1] = ball_v
+    for _ in range(4):
+        big_r, big_s = r0, s0
+        dec = 1.0
+        for m in range(n + 1):
+            pm, vm = min(p_cap, dec * p_dec), min(v_cap, dec * v_dec)
+            b_p, b_v = out[m, 0], out[m, 1]  # the previous sequence: this sample's range and speed
+            bp, bv, d_p, d_v = nav_terms(rp, rng + b_p, vel + b_v, ts)
+            if ftre:
+                off_p = 0.0 if jump else rp[R_GPP] * bp + rp[R_GPV] * bv
+                off_v = 0.0 if jump else rp[R_GVP] * bp + rp[R_GVV] * bv
+                new_p, new_v = pm + big_r + off_p, vm + big_s + off_v
+                un = rp[R_KP] * pm + rp[R_KV] * vm
+                eta = rp[R_EPSU] * un + rp[R_DMAX] + rp[R_KG] * (rng + b_p)
+                if jump:
+                    fr = rp[R_CNPP] * bp + rp[R_CNPV] * bv + rp[R_CPE] * eta
+                    fs = rp[R_CNVP] * bp + rp[R_CNVV] * bv + rp[R_CVE] * eta
+                else:
+                    fr = rp[R_DPP] * d_p + rp[R_DPV] * d_v + rp[R_CPE] * eta
+                    fs = rp[R_DVP] * d_p + rp[R_DVV] * d_v + rp[R_CVE] * eta
+            else:
+                new_p, new_v = big_r, big_s
+                un = rp[RA_KP] * (b_p + bp) + rp[RA_KV] * (b_v + bv)
+                eta = rp[R_EPSU] * un + rp[R_DMAX] + rp[R_KG] * (rng + b_p)
+                fr = rp[RA_CNPP] * bp + rp[RA_CNPV] * bv + rp[RA_CPE] * eta
+                fs = rp[RA_CNVP] * bp + rp[RA_CNVV] * bv + rp[RA_CVE] * eta
+            out[m, 0] = min(b_p, new_p)
+            out[m, 1] = min(b_v, new_v)
+            big_r = lam * big_r + fr
+            big_s = lam * big_s + fs
+            dec *= lam
+

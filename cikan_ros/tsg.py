@@ -47,7 +47,8 @@ from .errors import NoFeasibleShiftError, StateError
 from .orbit import (N_PARAMS, P_E, P_M0, P_MU, P_N, KeplerOrbit, check_states,
                     eccentric_anomaly_kernel, osculating_params_kernel, state_from_anomaly_kernel,
                     state_kernel, state_warm_kernel)
-from .robust import (HANDOFF_FTRE, R_GAMMA, R_ON, R_TUBE, R_ZETA, ancillary_start, ancillary_step,
+from .robust import (HANDOFF_FTRE, R_BETWEEN, R_GAMMA, R_ON, R_SINA, R_TUBE, R_ZETA, ancillary_command_bound,
+                     ancillary_start, ancillary_step, frame_rates, interval_ok, sample_excess, truth_acceleration,
                      ancillary_terminal_ok, robust_params, robust_terminal_ok, tube_next, tube_ok, tube_start)
 from .units import ns_to_seconds
 from .units import seconds_to_ns as to_ns
@@ -116,12 +117,13 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
     a row whose anomaly is NaN is computed on first use and reused by every later Verify.
     With ``rp[R_ON]`` the constraints and the terminal set are checked on the tube around the
     prediction (module docstring; the tube's kernels are in :mod:`cikan_ros.robust`).
-    ``trace`` (N_p, 18), or an empty array for none, receives under robust Verify each checked
-    sample's predicted deputy, rho, sigma, 0, the command applied from it (km/s^2) and the
-    predicted chief, and at the
-    accepting sample the virtual target, the terminal ball's radii and the loop the truth flies
-    on with (:data:`~cikan_ros.robust.HANDOFF_FTRE` 1, or under the ancillary tube
-    :data:`~cikan_ros.robust.HANDOFF_TRACK` 2: the tracking law holding x_v): what ``cikan
+    ``trace`` (N_p, TRACE_WIDTH), or an empty array for none, receives under robust Verify each
+    checked sample's predicted deputy, rho, sigma, 0, the command applied from it (km/s^2) and the
+    predicted chief, and at the accepting sample the virtual target, the terminal ball's radii,
+    the loop the truth flies on with (:data:`~cikan_ros.robust.HANDOFF_FTRE` 1, or under the
+    ancillary tube :data:`~cikan_ros.robust.HANDOFF_TRACK` 2: the tracking law holding x_v) and
+    in columns 18-21 what the terminal test started from (the prediction's distance and speed
+    from x_v, rho and sigma there: :func:`~cikan_ros.robust.terminal_ball_after`): what ``cikan
     coverage`` compares the truth with, and what the ancillary tube's controller tracks.
     Under the ancillary tube (``rp[R_TUBE]``) the prediction flies at gamma u_max and the tube is
     :func:`~cikan_ros.robust.ancillary_step`'s, which refuses a shift whose tracking law could
@@ -141,6 +143,10 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
     ancillary = rp[R_TUBE] != 0.0
     u_pred = rp[R_GAMMA] * u_max if ancillary else u_max  # the prediction's thrust limit
     r2 = s2 = 0.0  # the ancillary tube's second recursion
+    between = ancillary and rp[R_BETWEEN] != 0.0
+    # the previous sample for the between-samples check: cone and apex excess, range, largest
+    # speed, rho, then its interval's acceleration bound and the cone's turn rates
+    prev = np.zeros(8)
     x = x0.copy()
     xv = np.empty(6)
     u = np.empty(3)
@@ -170,6 +176,13 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
                 trace[j, 12:18] = xc[:6]
             if not tube_ok(x, xc, cp, rp, rho, sig):
                 return False
+            if between:  # the truth from the previous sample to this one (robust.interval_ok)
+                cone, apex = sample_excess(x, xc, cp, rp[R_SINA], rho)
+                vmax = math.sqrt((x[3] - xc[3]) ** 2 + (x[4] - xc[4]) ** 2 + (x[5] - xc[5]) ** 2) + sig
+                if j > 0 and not interval_ok(cp, ts, prev[0], prev[1], prev[2], prev[3], cone, apex, rng,
+                                             vmax, prev[4], rho, prev[5], prev[6], prev[7]):
+                    return False
+                prev[0], prev[1], prev[2], prev[3], prev[4] = cone, apex, rng, vmax, rho
         else:
             if h1_line_of_sight_kernel(x, xc, cp) > 0.0:
                 return False
@@ -209,6 +222,10 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
                     trace[j, 6] = ball_p
                     trace[j, 7] = ball_v
                     trace[j, 8] = handoff
+                    trace[j, 18] = math.sqrt(dp2)
+                    trace[j, 19] = math.sqrt(dv2)
+                    trace[j, 20] = rho
+                    trace[j, 21] = sig
                 return True
         a_n = ftre_control_kernel(table, nu_v, x, xv, u_pred, kb, u)  # |u| before saturation
         # h2 holds by saturation up to rounding; checked so a changed control law cannot skip it.
@@ -216,6 +233,11 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
             return False
         if robust and trace.shape[0] > 0:
             trace[j, 9:12] = u
+        if between:  # this interval's acceleration and cone turn rates, for the next sample's check
+            u_bound = ancillary_command_bound(rp, ts, x, xc, u, rng, rho, sig, big_r, big_s)
+            prev[5] = truth_acceleration(rp, u_bound, rng + rho + prev[3] * ts + 0.5 * u_max * ts * ts,
+                                         math.sqrt(xc[0] * xc[0] + xc[1] * xc[1] + xc[2] * xc[2]))
+            prev[6], prev[7] = frame_rates(xc, rp, ts)
         if ancillary:
             rho, sig, big_r, big_s, r2, s2, ok = ancillary_step(rp, u_max, ts, x, xc, u, rng, rho, sig,
                                                                 big_r, big_s, r2, s2)
@@ -226,6 +248,10 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
                                                        big_r, big_s, linear)
         rk4_kernel(x, u, ts, sub, mu, x, j2r2)
     return False
+
+
+#: Columns of a rollout trace (:func:`rollout_kernel`).
+TRACE_WIDTH = 22
 
 
 class ChiefCache:
@@ -536,13 +562,14 @@ class Predictor:
                                   self._shift(tau, "tau"), c.rows, c.t0))
 
     def rollout_trace(self, x_d: ArrayLike, t: float, tau: float) -> tuple[bool, NDArray]:
-        """One rollout of Verify(x_d, t, tau) (without the zeta interval) and its trace (N_p, 18)
+        """One rollout of Verify(x_d, t, tau) (without the zeta interval) and its trace (N_p, 22)
         under robust Verify: per checked sample the predicted deputy (km, km/s, ECI), rho (km),
-        sigma (km/s), 0, the command (km/s^2) and the predicted chief; at the accepting sample the virtual target, the terminal ball's
-        radii and 1; rows not reached stay NaN (:func:`rollout_kernel`)."""
+        sigma (km/s), 0, the command (km/s^2) and the predicted chief; at the accepting sample the
+        virtual target, the terminal ball's radii, the handoff and the terminal test's inputs;
+        rows not reached stay NaN (:func:`rollout_kernel`)."""
         x, t = self._state(x_d, t)
         c = self.cache(t)
-        trace = np.full((self.n_samples, 18), math.nan)
+        trace = np.full((self.n_samples, TRACE_WIDTH), math.nan)
         ok = rollout_kernel(self.orbit.params, self.gains, self.cparams, self.tparams, self.rparams, x, t,
                             self._shift(tau, "tau"), c.rows, c.t0, trace)
         return bool(ok), trace

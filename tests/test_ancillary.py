@@ -12,13 +12,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cikan_ros.config import ancillary_control_config, load_config, truth_overrides
+from cikan_ros.config import ancillary_control_config, handoff_control_config, load_config, truth_overrides
 from cikan_ros.control import B_INPUT, gain_table, interpolate_gain, zoh_discretise
 from cikan_ros.coverage import ROUNDING, coverage_tasks, held_shift_coverage
 from cikan_ros.dynamics import linearisation
 from cikan_ros.errors import ConfigError
 from cikan_ros.orbit import elements_to_state
-from cikan_ros.robust import ancillary_start, ancillary_step, ancillary_track_handoff, thrust_matrices
+from cikan_ros.robust import (HANDOFF_FTRE, HANDOFF_TRACK, ancillary_ftre_handoff, ancillary_start, ancillary_step,
+                              ancillary_track_handoff, terminal_ball_after, thrust_matrices)
 from cikan_ros.tsg import Predictor
 from ros_helpers import ros_env, rosbags_messages, sim_steps, states, tau_history  # noqa: F401 (fixture)
 
@@ -113,7 +114,13 @@ def test_the_tracking_handoff_ball_bounds_the_error_and_keeps_headroom(seed, nu,
         return
     rng = np.random.default_rng(seed)
     e = np.concatenate([ball_draw(rng, rho_km + dp), ball_draw(rng, sig_kmps + dv)])
-    for _ in range(300):
+    # and the ball over time (robust.terminal_ball_after), inside the one ball, at every sample
+    shrinking = np.empty((301, 2))
+    terminal_ball_after(x_v, chief, PRED.rparams, dp, dv, rho_km, sig_kmps, ball_p, ball_v, HANDOFF_TRACK,
+                        CFG.control.period_s, 300, shrinking)
+    assert np.all(shrinking[:, 0] <= ball_p) and np.all(shrinking[:, 1] <= ball_v)
+    assert np.linalg.norm(e[:3]) <= shrinking[0, 0] and np.linalg.norm(e[3:]) <= shrinking[0, 1]
+    for i in range(300):
         r = rng_km + ball_p  # the navigation bound at the farthest the truth can be
         bp = truth.bound("nav_pos_floor_km") + truth.bound("nav_pos_range_fraction") * r
         bv = truth.bound("nav_vel_floor_kmps") + truth.bound("nav_vel_range_fraction_per_s") * r
@@ -121,8 +128,105 @@ def test_the_tracking_handoff_ball_bounds_the_error_and_keeps_headroom(seed, nu,
         u = -k_a @ (e + delta)
         assert np.linalg.norm(u) <= u_max
         e = a_d @ e + b_d @ (m @ u + ball_draw(rng, truth.bound("disturbance_max_kmps2")))
-        assert np.linalg.norm(e[:3]) <= ball_p
-        assert np.linalg.norm(e[3:]) <= ball_v
+        assert np.linalg.norm(e[:3]) <= shrinking[i + 1, 0]
+        assert np.linalg.norm(e[3:]) <= shrinking[i + 1, 1]
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 2**31), nu=st.floats(0.0, 2 * math.pi),
+       which=st.integers(0, len(thrust_matrices(0.02, math.radians(1.0))) - 1),
+       dp=st.floats(0.0, 1e-3), dv=st.floats(0.0, 2e-5), rho_km=st.floats(0.0, 2e-4),
+       sig_kmps=st.floats(0.0, 2e-6))
+def test_the_terminal_ball_shrinks_as_the_ftre_loop_settles_at_the_chief(seed, nu, which, dp, dv, rho_km,
+                                                                          sig_kmps):
+    """tau = 0 accepted with the FTRE handoff (x_v the chief; the handoff's gain K of LQ weight
+    tsg.ancillary_handoff_r_diag): the prediction flies the nominal loop
+    z' = Phi z from |z_p| <= dp, |z_v| <= dv, the truth the loop with thruster map M,
+    e' = Phi_M e - B M K delta + B d, from within (rho, sigma) of it, with the navigation error in
+    its bound at the truth's range and moving by at most its declared rate, |d| <= d_max (scipy's
+    ZOH of the linearised dynamics at the chief): |e| stays within terminal_ball_after's ball at
+    every sample (robust.terminal_ball_after), which starts at most at the accepted ball and
+    settles to the fixed point of the loop's forcing at the chief."""
+    truth, u_max, ts = CFG.truth, CFG.control.u_max_kmps2, CFG.control.period_s
+    orbit = PRED.orbit
+    chief = elements_to_state(orbit.a, orbit.e, orbit.i, orbit.raan, orbit.argp, nu, orbit.mu)
+    ok, ball_p, ball_v = ancillary_ftre_handoff(chief, chief, PRED.cparams, PRED.rparams, dp, dv, rho_km,
+                                                sig_kmps, ts)
+    if not ok:
+        return
+    n = 120
+    out = np.empty((n + 1, 2))
+    terminal_ball_after(chief, chief, PRED.rparams, dp, dv, rho_km, sig_kmps, ball_p, ball_v, HANDOFF_FTRE,
+                        ts, n, out)
+    assert out[0, 0] <= ball_p and out[0, 1] <= ball_v
+    # settled: to the ball of the recursion's fixed point at the chief, within 1 %
+    settled = settled_ball(PRED.rparams, ts)
+    assert out[n, 0] == pytest.approx(settled[0], rel=1e-2) and out[n, 1] == pytest.approx(settled[1], rel=1e-2)
+    a_d, b_d = zoh_discretise(linearisation(chief[:3], orbit.mu), B_INPUT, ts)
+    k = interpolate_gain(gain_table(orbit, handoff_control_config(CFG)), nu)
+    m = thrust_matrices(truth.bound("thrust_bias_max"), math.radians(truth.bound("thrust_pointing_max_deg")))[which]
+    rng = np.random.default_rng(seed)
+    z = np.concatenate([ball_draw(rng, dp), ball_draw(rng, dv)])
+    e = z + np.concatenate([ball_draw(rng, rho_km), ball_draw(rng, sig_kmps)])
+    step = truth.nav_rate_per_s * ts
+
+    def nav_bounds(r: float) -> tuple[float, float]:
+        return (truth.bound("nav_pos_floor_km") + truth.bound("nav_pos_range_fraction") * r,
+                truth.bound("nav_vel_floor_kmps") + truth.bound("nav_vel_range_fraction_per_s") * r)
+
+    bp, bv = nav_bounds(float(np.linalg.norm(e[:3])))
+    delta = np.concatenate([ball_draw(rng, bp), ball_draw(rng, bv)])
+    for j in range(n + 1):
+        assert np.linalg.norm(e[:3]) <= out[j, 0] and np.linalg.norm(e[3:]) <= out[j, 1], j
+        u = -k @ (e + delta)
+        assert np.linalg.norm(u) <= u_max  # the FTRE loop stays linear: the handoff's promise
+        e = a_d @ e + b_d @ (m @ u + ball_draw(rng, truth.bound("disturbance_max_kmps2")))
+        z = a_d @ z - b_d @ (k @ z)
+        bp, bv = nav_bounds(float(np.linalg.norm(e[:3])))
+        nxt = delta + np.concatenate([ball_draw(rng, step * bp), ball_draw(rng, step * bv)])
+        for sl, b in ((slice(0, 3), bp), (slice(3, 6), bv)):
+            if np.linalg.norm(nxt[sl]) > b:
+                nxt[sl] *= b / np.linalg.norm(nxt[sl])
+        delta = nxt
+
+
+def settled_ball(rp: np.ndarray, ts: float) -> tuple[float, float]:
+    """The ball the FTRE handoff settles to at the chief once the prediction's transient and the
+    handed-over error have decayed, from the recursion's formula: R_inf = (D Delta + C_e eta) /
+    (1 - lam) plus the navigation offset G b, with b and Delta (k b + the bound's change with the
+    range, k = min(2, rate Ts)) at the ball's own range and speed, eta = d_max (no command left)."""
+    from cikan_ros import robust as r
+
+    k = min(2.0, rp[r.R_NRATE] * ts)
+    ball_p = ball_v = 0.0
+    for _ in range(50):
+        bp, bv = rp[r.R_NPF] + rp[r.R_NPG] * ball_p, rp[r.R_NVF] + rp[r.R_NVG] * ball_p
+        dp, dv = k * bp + rp[r.R_NPG] * ball_v * ts, k * bv + rp[r.R_NVG] * ball_v * ts
+        gain = 1.0 / (1.0 - rp[r.R_LAM])
+        ball_p = gain * (rp[r.R_DPP] * dp + rp[r.R_DPV] * dv + rp[r.R_CPE] * rp[r.R_DMAX]) \
+            + rp[r.R_GPP] * bp + rp[r.R_GPV] * bv
+        ball_v = gain * (rp[r.R_DVP] * dp + rp[r.R_DVV] * dv + rp[r.R_CVE] * rp[r.R_DMAX]) \
+            + rp[r.R_GVP] * bp + rp[r.R_GVV] * bv
+    return ball_p, ball_v
+
+
+def test_a_mission_reports_the_docking_test_robust_verify_certified():
+    """A whole mission (seed 2, the declared bounds): once tau = 0 is in force, robust Verify's
+    terminal ball certifies a docking test for the final step; after the hours the mission holds
+    tau = 0 it is the settled ball of the handoff's FTRE loop at the chief (settled_ball, from the
+    recursion's formula), inside the realistic docking test (0.1 m, 1 cm/s), and the truth ends
+    inside it."""
+    from cikan_ros.governor import ConventionalGovernor
+    from cikan_ros.mission import run_mission, sample_start
+
+    gov = ConventionalGovernor(Predictor.from_config(CFG))
+    m = run_mission(gov, sample_start(gov.predictor, 2), 2).metrics()
+    ball_p, ball_v = settled_ball(PRED.rparams, CFG.control.period_s)
+    assert m["success"] and m["docked_certified"]
+    assert m["dock_certified_m"] == pytest.approx(ball_p * 1e3, rel=1e-3)
+    assert m["dock_certified_mps"] == pytest.approx(ball_v * 1e3, rel=1e-3)
+    assert m["dock_certified_m"] < m["dock_distance_m"] and m["dock_certified_mps"] < m["dock_speed_mps"]
+    assert m["final_distance_m"] <= m["dock_certified_m"] and m["final_speed_mps"] <= m["dock_certified_mps"]
 
 
 def test_a_held_shift_stays_in_the_ancillary_tube_at_a_corner():

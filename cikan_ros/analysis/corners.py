@@ -1,7 +1,9 @@
 """The corner campaign's table (``cikan montecarlo --corners``, ``make corners``, ``cikan report
 DIR --corners``): per corner of the truth's declared bounds and governor, the runs flown, the
 violating control steps and the violating states between samples (on the truth), the runs docked
-and the largest final distance; one row per governor over all corners below them.
+(by the mission's test, and within the ball robust Verify certified for the final step, under
+the ancillary tube) and the largest final distance; one row per governor over all corners below
+them.
 
 The campaign directory is ``<corner>/<governor>/seed_*.json`` (what ``cikan montecarlo
 --corners`` writes); each run's metrics name their ``corner``.
@@ -38,6 +40,12 @@ def _row(corner: str, governor: str, runs: list[dict[str, Any]]) -> dict[str, An
         "runs_violated_between": None if between is None else
         sum(1 for m in flown if m["violations_between"]),
         "docked": sum(1 for m in flown if ends_docked(m)),
+        # the docking test robust Verify certified (the ancillary tube, tau = 0: None elsewhere)
+        "certified": sum(1 for m in flown if "dock_certified_m" in m),
+        "docked_certified": sum(1 for m in flown if m.get("docked_certified")),
+        "certified_ball_max": (max((m["dock_certified_m"] for m in flown if "dock_certified_m" in m), default=math.nan),
+                               max((m["dock_certified_mps"] for m in flown if "dock_certified_mps" in m),
+                                   default=math.nan)),
         "successes": sum(1 for m in flown if m["success"]),
         "final_distance_m_max": max((m["final_distance_m"] for m in flown), default=math.nan),
         "delta_v_kmps_mean": (sum(m["delta_v_kmps"] for m in flown) / len(flown)) if flown else math.nan,
@@ -62,15 +70,19 @@ def _fmt(v: float | None, spec: str) -> str:
 def markdown_corner_table(rows: list[dict[str, Any]]) -> str:
     """The table: one row per governor over all corners, then per corner."""
     lines = ["| governor | corner | runs | refused | violating steps (runs) | violating between samples "
-             "(runs) | docked | success | final distance max (m) | ΔV mean (km/s) |", "|" + "---|" * 10]
+             "(runs) | docked | success | docked in the certified ball (of certified), largest ball (m, mm/s) "
+             "| final distance max (m) | ΔV mean (km/s) |", "|" + "---|" * 11]
     for r in rows:
+        ball_p, ball_v = r["certified_ball_max"]
+        certified = "-" if not r["certified"] else \
+            f"{r['docked_certified']} ({r['certified']}), {ball_p:.3f}, {ball_v:.1f}"
         between = "-" if r["violations_between"] is None else \
             f"{r['violations_between']} ({r['runs_violated_between']})"
         corner = f"**{r['corner']}**" if r["corner"] == ALL_CORNERS else f"`{r['corner']}`"
         lines.append(
             f"| {r['governor']} | {corner} | {r['runs']} | {r['refused']} "
             f"| {r['violation_steps']} ({r['runs_violated']}) | {between} | {r['docked']} "
-            f"| {r['successes']} | {_fmt(r['final_distance_m_max'], '.4f')} "
+            f"| {r['successes']} | {certified} | {_fmt(r['final_distance_m_max'], '.4f')} "
             f"| {_fmt(r['delta_v_kmps_mean'], '.3f')} |")
     return "\n".join(lines) + "\n"
 

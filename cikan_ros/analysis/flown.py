@@ -144,6 +144,9 @@ def metric_rows(metrics: dict[str, Any], cfg: Config) -> list[tuple[str, str]]:
         (f"docked (< {m.dock_distance_km * 1e3:g} m, < {m.dock_speed_kmps * 1e3:g} m/s) at [s]",
          _value(metrics, "t_docked_s", "{}")),
         ("final distance [m]", distance_text(metrics.get("final_distance_m"), resolution)),
+        *([("docking robust Verify certified: ball [m, m/s], reached",
+            f"{metrics['dock_certified_m']:.4f}, {metrics['dock_certified_mps']:.2e}, "
+            f"{'yes' if metrics['docked_certified'] else 'NO'}")] if "dock_certified_m" in metrics else []),
         ("final relative speed [m/s]", _value(metrics, "final_speed_mps", "{:.3e}")),
         ("delta-V [km/s]", _value(metrics, "delta_v_kmps", "{:.4f}")),
         ("min LoS margin -h1/(|v_c||p_rel|)", _value(metrics, "min_h1_margin", "{:.3e}")),

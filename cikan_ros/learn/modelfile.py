@@ -166,6 +166,11 @@ def label_config(flat: Mapping[str, Any]) -> dict[str, Any]:
         out["tsg.tube"] = flat.get("tsg.tube", "ball")
         if out["tsg.tube"] == "ancillary":
             out.update({k: flat.get(k) for k in ("tsg.ancillary_gamma", "tsg.ancillary_r_diag")})
+            # the between-samples bound (configurations before it: the samples only)
+            out["tsg.ancillary_between"] = flat.get("tsg.ancillary_between", False)
+            # the FTRE law of the terminal handoff (before it: the robust controller's)
+            out["tsg.ancillary_handoff_r_diag"] = flat.get("tsg.ancillary_handoff_r_diag",
+                                                           flat.get("control.robust_r_diag"))
     return out
 
 
