@@ -150,7 +150,7 @@ class TSGConfig:
     #: bounded around the prediction; "ancillary", the truth tracks the accepted prediction
     #: (flown at ``ancillary_gamma`` u_max) with the linear gain of LQ weight
     #: ``ancillary_r_diag``, which must never saturate. Read only under ``tsg.robust``.
-    tube: str = "ball"
+    tube: str = "ancillary"
     ancillary_gamma: float = 0.5
     ancillary_r_diag: tuple[float, ...] = (1e10, 1e10, 1e10)
     #: LQ control weight of the FTRE law the ancillary tube hands the truth to at the terminal

@@ -132,11 +132,12 @@ def run_one(task: RunTask) -> dict[str, Any]:
     except (NoFeasibleShiftError, UnstableLoopError) as exc:
         # Robust Verify refuses the start (no feasible shift) or the declared bounds (no tube):
         # a result of the campaign, not a failure of it.
-        return save_refused(task, str(exc), json_path)
+        return save_refused(task, str(exc), json_path, npz_path)
 
 
-def save_refused(task: RunTask, reason: str, json_path: Path) -> dict[str, Any]:
-    """Record a run the governor refused to fly (``refused``: the one-line reason)."""
+def save_refused(task: RunTask, reason: str, json_path: Path, npz_path: Path | None = None) -> dict[str, Any]:
+    """Record a run the governor refused to fly (``refused``: the one-line reason); the arrays of
+    a run flown there before under another configuration go (they are not this run's)."""
     flat = json.loads(task.config_json)
     metrics = {"governor": governor_label(task.governor), "seed": task.seed, "refused": reason,
                "success": False}
@@ -146,6 +147,8 @@ def save_refused(task: RunTask, reason: str, json_path: Path) -> dict[str, Any]:
     tmp = json_path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps({"metrics": metrics, "config": flat}, indent=1))
     tmp.replace(json_path)
+    if npz_path is not None:
+        npz_path.unlink(missing_ok=True)
     return metrics
 
 

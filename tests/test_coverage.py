@@ -18,8 +18,11 @@ from cikan_ros.truth import Truth
 
 
 def robust(**extra):
+    """Robust Verify with the ball tube: this file checks the ball tube's coverage, which is not a
+    bound (the ancillary tube, robust Verify's default, is checked in test_ancillary)."""
     flat = truth_overrides("realistic")
     flat["tsg.robust"] = True
+    flat["tsg.tube"] = "ball"
     flat.update(extra)
     return load_config(**flat)
 

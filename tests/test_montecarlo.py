@@ -130,3 +130,19 @@ def test_corner_campaign_flies_every_corner_on_the_same_starts(tmp_path):
                           "--set", "truth.corner=b+.normal+.d+.n+", "--out", str(tmp_path / "bad")],
                          capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "leave truth.draw random" in bad.stderr
+
+
+def test_a_refused_run_replaces_the_arrays_of_an_older_run(tmp_path):
+    """A start flown once (JSON and arrays) and refused when the campaign is flown again under
+    another configuration: the refusal is recorded and the old arrays go, so no table reads the
+    old run's arrays as this run's (a scenario table once failed on such a pair)."""
+    from cikan_ros.montecarlo import RunTask, save_refused
+
+    task = RunTask(json.dumps({"tsg.robust": True}), "conventional", 13, str(tmp_path))
+    json_path, npz_path = run_paths(str(tmp_path), "conventional", 13)
+    npz_path.parent.mkdir(parents=True)
+    np.savez(npz_path, t=np.zeros(3))
+    json_path.write_text(json.dumps({"metrics": {"seed": 13, "delta_v_kmps": 0.5}, "config": {}}))
+    metrics = save_refused(task, "no feasible time shift", json_path, npz_path)
+    assert metrics["refused"] == "no feasible time shift" and not npz_path.exists()
+    assert json.loads(json_path.read_text())["metrics"]["refused"] == "no feasible time shift"

@@ -193,8 +193,9 @@ def test_robust_terminal_set_holds_the_loop_it_lets_go(nu, behind_m, dp_m, dv_fr
     (simulated with the independent loop of loop_at, frozen at the anomaly nu) must keep h1, with
     the virtual target on the cone's axis behind the chief (0: tau = 0, the target is the chief
     and the ball must fit inside the apex radius)."""
+    # the ball tube: its terminal test hands the truth to the loop the prediction flies
     cfg = load_config(**{**truth_overrides("realistic"), "truth.scale": 0.0, "tsg.robust": True,
-                         "control.r_diag": [r_diag] * 3})
+                         "tsg.tube": "ball", "control.r_diag": [r_diag] * 3})
     pred = Predictor.from_config(cfg)
     x_c = chief_at(nu)
     axis = -x_c[3:] / np.linalg.norm(x_c[3:])
@@ -237,9 +238,10 @@ def test_robust_verify_keeps_h1_past_the_terminal_set(r_diag, seed, extra):
 
 
 def test_robust_verify_with_zero_bounds_is_nominal_verify():
-    # the same controller for both (robust Verify flies control.robust_r_diag otherwise)
+    # the same controller for both (robust Verify flies control.robust_r_diag otherwise), and the
+    # ball tube (the ancillary tube's prediction flies at gamma u_max, another rollout)
     cfg = load_config(**{**truth_overrides("realistic"), "truth.scale": 0.0, "tsg.robust": True,
-                         "control.robust_r_diag": [1.0, 1.0, 1.0]})
+                         "tsg.tube": "ball", "control.robust_r_diag": [1.0, 1.0, 1.0]})
     robust = Predictor.from_config(cfg)
     nominal = Predictor.from_config(load_config())
     for seed in (1, 2):

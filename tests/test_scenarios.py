@@ -20,7 +20,7 @@ from cikan_ros.constraints import h1_line_of_sight, h3_approach_velocity
 from cikan_ros.errors import ConfigError
 from cikan_ros.governor import ConventionalGovernor
 from cikan_ros.learn.errors import ModelFileError
-from cikan_ros.learn.modelfile import MODELS_DIR, scenario_model_dir
+from cikan_ros.learn.modelfile import MODELS_DIR, label_mismatch, scenario_model_dir
 from cikan_ros.mission import nominal_shift, nominal_start, run_mission, sample_start
 from cikan_ros.registry import make_governor
 from cikan_ros.tsg import Predictor
@@ -247,14 +247,19 @@ def test_robust_verify_flies_its_own_models(tmp_path: Path) -> None:
     allowed = cfg.replace(**{"learned.foreign_model": True})
     assert flown_model_dir(allowed, "cikan") == tmp_path / "cikan"
     assert make_governor("cikan", allowed).foreign.startswith("trained on labels of nominal Verify")
-    # A model of the ball tube's labels flown under the ancillary tube is another Verify's (the
-    # shipped robust CIKAN): refused naming the tube, flown foreign when allowed.
-    shipped = load_config(**{**truth_overrides("realistic"), "tsg.robust": True, "tsg.tube": "ancillary"})
-    with pytest.raises(ModelFileError, match=r"tube.*\(differs: .*tsg\.tube"):
-        make_governor("cikan", shipped)
-    foreign = make_governor("cikan", shipped.replace(**{"learned.foreign_model": True})).foreign
-    assert foreign.endswith("controller R = 1e+07, ancillary tube) (differs: tsg.tube)"), foreign
-    assert make_governor("cikan", shipped.replace(**{"tsg.tube": "ball"})).foreign is None
+    # A model of the ancillary tube's labels (the shipped robust CIKAN) flown under the ball tube is
+    # another Verify's: refused naming the tube and the settings the ball tube has not, flown
+    # foreign when allowed; a model of the ball tube's labels under the ancillary tube likewise.
+    shipped = load_config(**{**truth_overrides("realistic"), "tsg.robust": True})
+    assert make_governor("cikan", shipped).foreign is None
+    ball = shipped.replace(**{"tsg.tube": "ball"})
+    with pytest.raises(ModelFileError, match=r"ancillary tube\), not of .*\(differs: .*tsg\.tube"):
+        make_governor("cikan", ball)
+    foreign = make_governor("cikan", ball.replace(**{"learned.foreign_model": True})).foreign
+    assert foreign.endswith("tsg.ancillary_r_diag, tsg.tube)"), foreign
+    card = json.loads((MODELS_DIR / "cikan-robust" / "card.json").read_text())
+    card["config"] = {**card["config"], "tsg.tube": "ball"}
+    assert label_mismatch(card, shipped.flat()).endswith("tsg.ancillary_r_diag, tsg.tube)")
     # A dataset of nominal labels does not train a robust model, and the other way round.
     meta = {"config": cfg.replace(**{"tsg.robust": False}).flat()}
     check_dataset_labels(meta, "d.parquet", cfg.replace(**{"tsg.robust": False}).flat())

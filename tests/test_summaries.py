@@ -74,8 +74,9 @@ def test_learned_mission_summary_names_its_model_and_acceptance():
     flown += ["--set", "truth.scale=0.5"]
     refused = cikan("mission", *flown)
     assert refused.returncode == 2 and len(refused.stderr.strip().splitlines()) == 1
-    assert ("trained on labels of robust Verify (truth realistic at scale 1.0, controller R = 1e+07), not of "
-            "robust Verify (truth realistic at scale 0.5, controller R = 1e+07) (differs: truth.scale)") in refused.stderr
+    assert ("trained on labels of robust Verify (truth realistic at scale 1.0, controller R = 1e+07, ancillary tube), "
+            "not of robust Verify (truth realistic at scale 0.5, controller R = 1e+07, ancillary tube) "
+            "(differs: truth.scale)") in refused.stderr
     flown += ["--set", "learned.foreign_model=true"]
     out = cikan("mission", *flown)
     js = cikan("mission", *flown, "--json")

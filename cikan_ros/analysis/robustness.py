@@ -35,6 +35,11 @@ class Cell:
     truth: str
     dock_m: float
     dock_mps: float
+    #: Robust Verify's tube ("ball", "ancillary"; "-" under nominal Verify), the ancillary tube's
+    #: gamma (NaN otherwise) and the truth's navigation model.
+    tube: str = "-"
+    gamma: float = math.nan
+    nav_model: str = "realistic"
     runs: dict[int, dict[str, Any]] = field(default_factory=dict)   # seed -> metrics
 
     @property
@@ -71,16 +76,20 @@ def load_cells(root: str | Path) -> list[Cell]:
         if truth == "nominal":
             scale = 0.0  # the nominal truth is scale 0 of every truth
         r_weight = flown_r_weight(cfg)
-        key = (m["governor"], robust, r_weight, scale, truth if scale > 0 else "nominal")
+        # runs stored before the ancillary tube flew the ball
+        tube = str(cfg.get("tsg.tube", "ball")) if robust else "-"
+        gamma = float(cfg.get("tsg.ancillary_gamma", math.nan)) if tube == "ancillary" else math.nan
+        nav = str(cfg.get("truth.nav_model", "realistic")) if scale > 0 else "realistic"
+        key = (m["governor"], robust, r_weight, scale, truth if scale > 0 else "nominal", tube, gamma, nav)
         cell = cells.get(key)
         if cell is None:
             cell = cells[key] = Cell(m["governor"], robust, r_weight, scale, key[4],
                                      float(cfg["mission.dock_distance_km"]) * 1e3,
-                                     float(cfg["mission.dock_speed_kmps"]) * 1e3)
+                                     float(cfg["mission.dock_speed_kmps"]) * 1e3, tube, gamma, nav)
         cell.runs[int(m["seed"])] = m
     if not cells:
         raise CikanError(f"no Monte Carlo runs under {root} (expected <config>/<governor>/seed_*.json)")
-    return sorted(cells.values(), key=lambda c: (c.robust, c.r_weight, c.scale,
+    return sorted(cells.values(), key=lambda c: (c.robust, c.tube, c.r_weight, c.nav_model, c.scale,
                                                  c.governor != "conventional", c.governor))
 
 
@@ -102,7 +111,7 @@ def cell_row(c: Cell, ref: dict[int, float]) -> dict[str, Any]:
     tz = [m["t_tau_zero_s"] for m in flown if m.get("t_tau_zero_s") is not None]
     return {
         "governor": c.governor, "verify": "robust" if c.robust else "nominal", "r_weight": c.r_weight,
-        "scale": c.scale,
+        "scale": c.scale, "tube": c.tube, "gamma": c.gamma, "nav_model": c.nav_model,
         "runs": len(c.runs), "refused": len(c.runs) - len(flown),
         "violation_steps": sum(int(m["violations"]) for m in flown),
         "runs_violated": sum(1 for m in flown if m["violations"]),
@@ -123,12 +132,15 @@ def _fmt(v: float, spec: str) -> str:
 
 def markdown_table(rows: list[dict[str, Any]]) -> str:
     """One row per governor, Verify, controller weight and scale."""
-    lines = ["| Verify | controller R | truth.scale | governor | runs | refused | violating steps (runs) "
-             "| violating between samples | docked | success | ΔV mean (km/s) | ΔV / nominal conventional "
-             "| τ = 0 reached | t(τ = 0) mean (s) | docking test |", "|" + "---|" * 15]
+    lines = ["| Verify | tube | controller R | truth.scale | navigation | governor | runs | refused "
+             "| violating steps (runs) | violating between samples | docked | success | ΔV mean (km/s) "
+             "| ΔV / nominal conventional | τ = 0 reached | t(τ = 0) mean (s) | docking test |",
+             "|" + "---|" * 17]
     for r in rows:
+        tube = r["tube"] if not math.isfinite(r["gamma"]) else f"{r['tube']}, γ {r['gamma']:g}"
         lines.append(
-            f"| {r['verify']} | {r['r_weight']:g} | {r['scale']:g} | {r['governor']} | {r['runs']} "
+            f"| {r['verify']} | {tube} | {r['r_weight']:g} | {r['scale']:g} | {r['nav_model']} "
+            f"| {r['governor']} | {r['runs']} "
             f"| {r['refused']} "
             f"| {r['violation_steps']} ({r['runs_violated']}) "
             f"| {'-' if r['violations_between'] is None else r['violations_between']} "
@@ -146,24 +158,27 @@ def figure(rows: list[dict[str, Any]], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    combos = sorted({(r["verify"], r["r_weight"]) for r in rows},
-                    key=lambda vr: (vr[0] == "robust", vr[1]))
+    def combo(r: dict[str, Any]) -> tuple[str, str, float, str]:  # a column: one Verify across scales
+        return r["verify"], r["tube"], r["r_weight"], r["nav_model"]
+
+    combos = sorted({combo(r) for r in rows}, key=lambda vr: (vr[0] == "robust", vr[1], vr[2], vr[3]))
     combos = [vr for vr in combos
-              if len({r["scale"] for r in rows if (r["verify"], r["r_weight"]) == vr}) > 1] or combos
+              if len({r["scale"] for r in rows if combo(r) == vr}) > 1] or combos
     fig, axes = plt.subplots(3, len(combos), figsize=(5 * len(combos), 9), sharex=True,
                              sharey="row", squeeze=False)
     governors = sorted({r["governor"] for r in rows}, key=lambda g: (g != "conventional", g))
-    for col, (verify, r_weight) in enumerate(combos):
+    for col, (verify, tube, r_weight, nav) in enumerate(combos):
         for g in governors:
-            pts = sorted((r["scale"], r) for r in rows if r["verify"] == verify
-                         and r["r_weight"] == r_weight and r["governor"] == g)
+            pts = sorted(((r["scale"], r) for r in rows if combo(r) == (verify, tube, r_weight, nav)
+                          and r["governor"] == g), key=lambda p: p[0])
             if not pts:
                 continue
             xs = [s for s, _ in pts]
             axes[0, col].plot(xs, [r["runs_violated"] / r["runs"] for _, r in pts], "o-", label=g)
             axes[1, col].plot(xs, [r["docked"] / r["runs"] for _, r in pts], "o-", label=g)
             axes[2, col].plot(xs, [r["delta_v_ratio"] for _, r in pts], "o-", label=g)
-        axes[0, col].set_title(f"{verify} Verify, controller R = {r_weight:g}")
+        axes[0, col].set_title(f"{verify} Verify{'' if tube == '-' else ', ' + tube + ' tube'}, "
+                               f"R = {r_weight:g}{'' if nav == 'realistic' else ', ' + nav}", fontsize=9)
         axes[2, col].set_xlabel("truth.scale (realistic)")
     axes[0, 0].set_ylabel("runs with a violation")
     axes[1, 0].set_ylabel("runs docked (refused: not)")

@@ -61,7 +61,8 @@ def _runs(gov_dir: Path) -> list[tuple[dict[str, Any], dict[str, Any], Path]]:
         npz = js.with_suffix(".npz")
         if npz.exists():
             stored = json.loads(js.read_text())
-            out.append((stored["metrics"], stored["config"], npz))
+            if "refused" not in stored["metrics"]:  # (arrays left by an older run: not this one's)
+                out.append((stored["metrics"], stored["config"], npz))
     return out
 
 

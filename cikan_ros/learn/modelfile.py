@@ -195,7 +195,8 @@ def label_mismatch(card: Mapping[str, Any], flat: Mapping[str, Any]) -> str | No
     text = f"trained on labels of {describe_labels(made)}, not of {describe_labels(flown)}"
     if made["tsg.robust"] != flown["tsg.robust"]:
         return text
-    return text + f" (differs: {', '.join(sorted(k for k in made if made[k] != flown[k]))})"
+    # a key one side has and the other not (the ancillary tube's settings under the ball tube) differs
+    return text + f" (differs: {', '.join(sorted(k for k in made.keys() | flown.keys() if made.get(k) != flown.get(k)))})"
 
 
 def model_scenario(card: Mapping[str, Any]) -> dict[str, str]:
