@@ -29,8 +29,10 @@ orbit normal, radial: the third, in plane); a constant |d| = d_max along +-the c
 each step (the along-track push, as differential drag acts, which drifts the deputy along the
 approach corridor); a navigation error of exactly b_p(r), b_v(r) at the true range r along +-the
 line of sight from the chief to the deputy (the direction that changes the measured range and
-range rate, what the cone, the approach speed and the docking test are judged on); under the
-filter model its sign flips at every update (the largest jump, 2 b).
+range rate, what the cone, the approach speed and the docking test are judged on), moving toward
+it by at most the declared rate (``truth.nav_rate_per_s``; near the chief, where the line of sight
+turns faster, the error lags it inside its bound); under the filter model its sign flips at every
+update (the largest jump, 2 b).
 
 Every bound is the configured one times ``truth.scale``; the Gauss-Markov processes have a
 standard deviation of a third of their bound per axis, so the clip acts rarely and the bound
@@ -146,6 +148,8 @@ class Truth:
         self.disturbance = corner.disturbance * f * tc.bound("disturbance_max_kmps2") * along
         flips = 1.0 if tc.nav_model == "realistic" else np.where(self.nav_update % 2 == 0, 1.0, -1.0)
         self.nav_sign = corner.nav * f * np.broadcast_to(flips, self.nav_update.shape)
+        #: The rate-limited corner's error per step evaluated (:meth:`_rate_limited`).
+        self._corner_units: dict[int, NDArray] = {}
 
     def chief_state(self, k: int) -> NDArray:
         """The true chief at t_k (6,), km, km/s, ECI."""
@@ -180,7 +184,26 @@ class Truth:
         # a corner: along the line of sight (the chief's velocity if the deputy sits on the chief)
         rel = x_d[:3] - self.chief[k, :3]
         los = rel / rng if rng > 0.0 else self.chief[k, 3:] / np.linalg.norm(self.chief[k, 3:])
-        return self.nav_sign[k] * bp * los, self.nav_sign[k] * bv * los
+        unit = self.nav_sign[k] * los
+        if self.tc.nav_model == "realistic":
+            unit = self._rate_limited(k, unit)
+        return bp * unit, bv * unit
+
+    def _rate_limited(self, k: int, target: NDArray) -> NDArray:
+        """A corner's navigation error as a fraction of its bound (in the unit ball) under the
+        rate-limited model: toward ``target`` (the line of sight at the bound) from the previous
+        step's by at most ``truth.nav_rate_per_s`` T_c, as the declared model allows; on the bound
+        where the line of sight turns slowly (every step but those near the chief), and pinned
+        there at a step whose predecessor was not evaluated (the first)."""
+        prev = self._corner_units.get(k - 1)
+        out = target
+        if prev is not None:
+            step = self.tc.nav_rate_per_s * self.period
+            gap = float(np.linalg.norm(target - prev))
+            if gap > step:
+                out = prev + (target - prev) * (step / gap)
+        self._corner_units[k] = out
+        return out
 
     def measure_chief(self, k: int) -> NDArray:
         """The chief state as navigation gives it at t_k (exact; module docstring)."""

@@ -139,3 +139,34 @@ def test_the_cikan_command_refuses_a_bad_corner_in_one_line(sets, named):
     out = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     assert out.returncode == 2, out.stderr
     assert out.stderr.count("\n") == 1 and named in out.stderr and "Traceback" not in out.stderr
+
+
+def test_a_corner_navigation_error_moves_no_faster_than_the_declared_rate():
+    """Under the rate-limited navigation model a corner's error is a member of the declared set:
+    along the line of sight on its bound while that turns slowly (a deputy drifting 100 m out),
+    and, where the line of sight turns faster (a deputy circling the chief at 1 cm, a quarter turn
+    per step), moving toward it by at most nav_rate_per_s T_c of its bound per step, inside it
+    (to the rounding of the ECI positions the line of sight is taken from)."""
+    tc = realistic().truth
+    truth = corner_truth("b+.along+.d+.n+", n_steps=40)
+    step = tc.nav_rate_per_s * truth.period
+    prev = None
+    for k in range(40):
+        if k < 20:   # slowly: on the bound, along the line of sight
+            rel = np.array([0.1 + 1e-4 * k, 0.0, 0.0])
+        else:        # a quarter turn per step around the chief, 1 cm out
+            a = math.pi / 2 * k
+            rel = 1e-5 * np.array([math.cos(a), math.sin(a), 0.0])
+        x = truth.chief_state(k) + np.concatenate([rel, np.zeros(3)])
+        e_p, e_v = truth.nav_error(k, x)
+        bp, bv = truth.nav_bounds(float(np.linalg.norm(rel)))
+        unit = e_p / bp
+        np.testing.assert_allclose(e_v / bv, unit, rtol=0, atol=1e-9)
+        assert np.linalg.norm(unit) <= 1.0 + 1e-9
+        if k < 20:
+            np.testing.assert_allclose(unit, rel / np.linalg.norm(rel), rtol=0, atol=1e-9)
+        if prev is not None:
+            assert np.linalg.norm(unit - prev) <= step + 1e-9
+        if k > 21:
+            assert np.linalg.norm(unit - prev) == pytest.approx(step)   # the limit acts
+        prev = unit
