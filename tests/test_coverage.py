@@ -96,3 +96,18 @@ def test_cikan_coverage_refuses_nominal_verify_in_one_line():
     out = subprocess.run([sys.executable, "-m", "cikan_ros.cli", "coverage", "--truth", "realistic"],
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 2 and out.stderr.count("\n") == 1 and "--robust" in out.stderr
+
+
+def test_the_sweep_applies_set_over_each_scenario():
+    """`cikan coverage --sweep --set tsg.tube=ancillary` flies every scenario with the ancillary
+    tube, GEO too (whose scenario sets the ball tube); without it GEO keeps its own."""
+    from cikan_ros.cli import build_parser
+    from cikan_ros.commands.coverage import sweep_configs
+
+    base = ["coverage", "--sweep", "--truth", "realistic", "--robust"]
+    forced = dict(sweep_configs(build_parser().parse_args([*base, "--set", "tsg.tube=ancillary"])))
+    own = dict(sweep_configs(build_parser().parse_args(base)))
+    assert {c.tsg.tube for c in forced.values()} == {"ancillary"}
+    assert own["geo, behind"].tsg.tube == "ball" and own["paper, ahead"].tsg.tube == "ancillary"
+    assert own["geo, ahead"].mission.approach == "ahead" and own["geo, ahead"].scenario.name == "geo"
+    assert forced["leo, behind"].truth.name == "realistic" and forced["leo, behind"].tsg.robust

@@ -146,3 +146,21 @@ def test_a_refused_run_replaces_the_arrays_of_an_older_run(tmp_path):
     metrics = save_refused(task, "no feasible time shift", json_path, npz_path)
     assert metrics["refused"] == "no feasible time shift" and not npz_path.exists()
     assert json.loads(json_path.read_text())["metrics"]["refused"] == "no feasible time shift"
+
+
+def test_the_corner_table_counts_the_runs_inside_the_certified_ball():
+    """The corner table's certified column: runs that ended inside the ball robust Verify
+    certified, of those that have one, and the largest ball (m, mm/s); "-" when none has one."""
+    from cikan_ros.analysis.corners import corner_rows, markdown_corner_table
+
+    base = {"violations": 0, "violations_between": 0, "success": True, "final_distance_m": 0.01,
+            "final_speed_mps": 1e-4, "dock_distance_m": 0.1, "dock_speed_mps": 0.01, "delta_v_kmps": 0.4,
+            "corner": "b+.along+.d+.n+"}
+    runs = [{**base, "dock_certified_m": 0.044, "dock_certified_mps": 0.00135, "docked_certified": True},
+            {**base, "dock_certified_m": 0.05, "dock_certified_mps": 0.0012, "docked_certified": False},
+            base]
+    row = corner_rows({"conventional": runs})[0]
+    assert (row["certified"], row["docked_certified"]) == (2, 1)
+    assert row["certified_ball_max"] == (0.05, 0.00135)
+    assert "| 1 (2), 0.050, 1.35 |" in markdown_corner_table([row])
+    assert "| 1 | 1 | - |" in markdown_corner_table(corner_rows({"conventional": [base]})[:1])

@@ -75,7 +75,7 @@ def markdown_corner_table(rows: list[dict[str, Any]]) -> str:
     for r in rows:
         ball_p, ball_v = r["certified_ball_max"]
         certified = "-" if not r["certified"] else \
-            f"{r['docked_certified']} ({r['certified']}), {ball_p:.3f}, {ball_v:.1f}"
+            f"{r['docked_certified']} ({r['certified']}), {ball_p:.3f}, {ball_v * 1e3:.2f}"  # m/s -> mm/s
         between = "-" if r["violations_between"] is None else \
             f"{r['violations_between']} ({r['runs_violated_between']})"
         corner = f"**{r['corner']}**" if r["corner"] == ALL_CORNERS else f"`{r['corner']}`"

@@ -4,8 +4,12 @@ flown at every corner of the declared bounds and for random draws (:mod:`cikan_r
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
 
 from . import add_config_args, config_from_args, int_at_least, seed_arg
+
+if TYPE_CHECKING:
+    from ..config import Config
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -28,13 +32,24 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def sweep_configs(args: argparse.Namespace) -> list[tuple[str, Config]]:
+    """(title, configuration) of every scenario and side of ``--sweep``: each scenario as
+    ``--scenario`` gives it, with the truth, ``--robust`` and ``--set`` applied over it (a
+    ``--set`` value wins over the scenario's own, e.g. ``tsg.tube`` over GEO's)."""
+    from ..coverage import SWEEP
+
+    return [(f"{scenario}, {side}",
+             config_from_args(argparse.Namespace(**{**vars(args), "scenario": scenario}))
+             .replace(**{"mission.approach": side}))
+            for scenario, side in SWEEP]
+
+
 def run(args: argparse.Namespace) -> int:
     import shlex
     import sys
     from pathlib import Path
 
-    from ..config import scenario_overrides
-    from ..coverage import SWEEP, _flight, coverage_tasks, markdown, summarise
+    from ..coverage import _flight, coverage_tasks, markdown, summarise
     from ..errors import ConfigError
     from ..parallel import ordered_map
     from ..strict_json import dumps
@@ -50,11 +65,7 @@ def run(args: argparse.Namespace) -> int:
     if args.sweep:
         if args.scenario is not None:
             raise ConfigError("--sweep flies every shipped scenario: leave out --scenario")
-        configs = []
-        for scenario, side in SWEEP:
-            over = scenario_overrides(scenario)
-            over["mission.approach"] = side
-            configs.append((f"{scenario}, {side}", base.replace(**over)))
+        configs = sweep_configs(args)
     else:
         configs = [(f"{base.scenario.name}, {base.mission.approach}", base)]
     sections = []
