@@ -64,16 +64,23 @@ class Plan:
         n = k - self.k0 - len(self.x_p)
         if self.terminal is None or n < 0:
             return None
-        row = self.terminal
-        out = np.empty((n + 1, 2))
-        terminal_ball_after(row[:6], row[12:18], predictor.rparams, row[18], row[19], row[20], row[21],
-                            row[6], row[7], row[8], predictor.config.control.period_s, n, out)
+        out = terminal_balls(predictor, self.terminal, n)
         return float(out[n, 0]), float(out[n, 1])
 
     def sample(self, k: int) -> int | None:
         """The plan's sample j at control step k, or None once the plan is done (terminal)."""
         j = k - self.k0
         return j if 0 <= j < len(self.x_p) else None
+
+
+def terminal_balls(predictor: Predictor, row: NDArray, n: int) -> NDArray:
+    """(n + 1, 2): the ball (km, km/s) about x_v that robust Verify's terminal test certifies
+    0 .. n samples after the terminal sample of a rollout, from its terminal trace row
+    (:data:`~cikan_ros.tsg.TRACE_WIDTH`,; :func:`~cikan_ros.robust.terminal_ball_after`)."""
+    out = np.empty((n + 1, 2))
+    terminal_ball_after(row[:6], row[12:18], predictor.rparams, row[18], row[19], row[20], row[21],
+                        row[6], row[7], row[8], predictor.config.control.period_s, n, out)
+    return out
 
 
 class AncillaryLaw:

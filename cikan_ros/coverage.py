@@ -24,11 +24,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from .ancillary import terminal_balls
 from .config import Config
 from .errors import ConfigError
 from .governor import PATH_KEEP, Governor, UpdateRecord
 from .mission import ClosedLoop, run_mission, sample_start, through_si
-from .robust import HANDOFF_FTRE, terminal_ball_after
+from .robust import HANDOFF_FTRE
 from .registry import make_governor
 from .truth import Truth
 
@@ -130,10 +131,7 @@ def held_shift_coverage(cfg: Config, seed: int, governor: str = "conventional") 
     # sample, which shrinks as the loop settles (robust.terminal_ball_after: the docking test).
     radii = np.broadcast_to(trace[term, 6:8], ball.shape)
     if pred.ancillary and len(ball):
-        row = trace[term]
-        radii = np.empty_like(ball)
-        terminal_ball_after(row[:6], row[12:18], pred.rparams, row[18], row[19], row[20], row[21], row[6],
-                            row[7], row[8], cfg.control.period_s, len(ball) - 1, radii)
+        radii = terminal_balls(pred, trace[term], len(ball) - 1)
     for i, k in enumerate(range(term, k_end + 1)):
         t = float(result.t[k])
         x_v = loop.anchor(through_si(seen_c[k]), t).orbit.state(t + tau)

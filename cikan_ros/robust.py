@@ -521,7 +521,7 @@ def ancillary_step(rp: NDArray, u_max: float, ts: float, x: NDArray, xc: NDArray
     rr = rng + rho
     bp, bv, dp, dv = nav_terms(rp, rr, vrel + sig, ts)
     un = math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
-    if ancillary_command_bound(rp, ts, x, xc, u, rng, rho, sig, r1, s1) > u_max:
+    if command_bound_of(rp, un, bp, bv, dp, dv, rho, sig, r1, s1) > u_max:
         return rho, sig, r1, s1, r2, s2, False
     eta = rp[R_EPSU] * un + rp[R_DMAX] + rp[R_KG] * rr
     lam = rp[RA_LAM]
@@ -541,11 +541,21 @@ def ancillary_command_bound(rp: NDArray, ts: float, x: NDArray, xc: NDArray, u: 
     tube (:func:`ancillary_step`): |u_p| + |K_a,p| Dp + |K_a,v| Dv."""
     vrel = math.sqrt((x[3] - xc[3]) ** 2 + (x[4] - xc[4]) ** 2 + (x[5] - xc[5]) ** 2)
     bp, bv, dp, dv = nav_terms(rp, rng + rho, vrel + sig, ts)
+    return command_bound_of(rp, math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]), bp, bv, dp, dv,
+                            rho, sig, r1, s1)
+
+
+@nb.njit(cache=True, inline="always")
+def command_bound_of(rp: NDArray, un: float, bp: float, bv: float, dp: float, dv: float, rho: float,
+                     sig: float, r1: float, s1: float) -> float:
+    """:func:`ancillary_command_bound` from the command's norm un and the navigation terms
+    (:func:`nav_terms`) already at hand: Dp and Dv, the bounds of e + delta, are
+    min(R1 + H b + G Delta, rho + b)."""
     dev_p = min(r1 + rp[RA_HPP] * bp + rp[RA_HPV] * bv + rp[RA_GPP] * dp + rp[RA_GPV] * dv,
                 rho + bp)
     dev_v = min(s1 + rp[RA_HVP] * bp + rp[RA_HVV] * bv + rp[RA_GVP] * dp + rp[RA_GVV] * dv,
                 sig + bv)
-    return math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]) + rp[RA_KP] * dev_p + rp[RA_KV] * dev_v
+    return un + rp[RA_KP] * dev_p + rp[RA_KV] * dev_v
 
 
 #: How the truth flies on from the terminal sample of an ancillary-tube rollout (the code robust
