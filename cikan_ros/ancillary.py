@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from .config import ancillary_control_config, handoff_control_config
+from .config import ancillary_band_configs, ancillary_control_config, handoff_control_config
 from .control import gain_table, interpolate_gain, saturate
 from .errors import StateError
 from .robust import HANDOFF_FTRE, HANDOFF_TRACK, terminal_ball_after
@@ -45,6 +45,9 @@ class Plan:
     #: The rollout's terminal row (:data:`~cikan_ros.tsg.TRACE_WIDTH`,): x_v, the ball, the
     #: handoff, the predicted chief and the terminal test's inputs (None: not recorded).
     terminal: NDArray | None = None
+    #: The gain band robust Verify verified the plan with (:meth:`Predictor.band`): the tracking
+    #: gain K_a the plan is flown with.
+    band: int = 0
 
     @classmethod
     def accepted(cls, predictor: Predictor, k: int, t: float, tau: float, x_d: NDArray) -> "Plan":
@@ -55,7 +58,7 @@ class Plan:
             raise StateError(f"the shift {tau} s taking effect at t = {t} s does not pass robust Verify: no plan")
         term = int(np.flatnonzero(trace[:, 8] >= HANDOFF_FTRE)[0])
         return cls(k, float(tau), trace[:term, :6].copy(), trace[:term, 9:12].copy(),
-                   bool(trace[term, 8] == HANDOFF_TRACK), trace[term].copy())
+                   bool(trace[term, 8] == HANDOFF_TRACK), trace[term].copy(), predictor.band(x_d, t))
 
     def certified_ball(self, predictor: Predictor, k: int) -> tuple[float, float] | None:
         """The ball (km, km/s) about x_v that robust Verify's terminal test certifies for the
@@ -64,7 +67,7 @@ class Plan:
         n = k - self.k0 - len(self.x_p)
         if self.terminal is None or n < 0:
             return None
-        out = terminal_balls(predictor, self.terminal, n)
+        out = terminal_balls(predictor, self.terminal, n, self.band)
         return float(out[n, 0]), float(out[n, 1])
 
     def sample(self, k: int) -> int | None:
@@ -73,12 +76,13 @@ class Plan:
         return j if 0 <= j < len(self.x_p) else None
 
 
-def terminal_balls(predictor: Predictor, row: NDArray, n: int) -> NDArray:
+def terminal_balls(predictor: Predictor, row: NDArray, n: int, band: int = 0) -> NDArray:
     """(n + 1, 2): the ball (km, km/s) about x_v that robust Verify's terminal test certifies
-    0 .. n samples after the terminal sample of a rollout, from its terminal trace row
-    (:data:`~cikan_ros.tsg.TRACE_WIDTH`,; :func:`~cikan_ros.robust.terminal_ball_after`)."""
+    0 .. n samples after the terminal sample of a rollout verified in gain band ``band``
+    (:meth:`Predictor.band`), from its terminal trace row (:data:`~cikan_ros.tsg.TRACE_WIDTH`,;
+    :func:`~cikan_ros.robust.terminal_ball_after`)."""
     out = np.empty((n + 1, 2))
-    terminal_ball_after(row[:6], row[12:18], predictor.rparams, row[18], row[19], row[20], row[21],
+    terminal_ball_after(row[:6], row[12:18], predictor.band_params(band), row[18], row[19], row[20], row[21],
                         row[6], row[7], row[8], predictor.config.control.period_s, n, out)
     return out
 
@@ -88,7 +92,9 @@ class AncillaryLaw:
 
     def __init__(self, predictor: Predictor) -> None:
         cfg = predictor.config
-        self.gains = gain_table(predictor.orbit, ancillary_control_config(cfg))
+        #: K_a of each gain band (:attr:`Predictor.rbands`; one without bands).
+        self.band_gains = [gain_table(predictor.orbit, ancillary_control_config(band))
+                           for _, band in ancillary_band_configs(cfg)[:max(1, len(predictor.rbands))]]
         #: The FTRE law the truth is handed to at a plan's terminal sample (robust Verify's
         #: :data:`~cikan_ros.robust.HANDOFF_FTRE`).
         self.handoff_gains = gain_table(predictor.orbit, handoff_control_config(cfg))
@@ -98,16 +104,17 @@ class AncillaryLaw:
 
     def command(self, plan: Plan, j: int, nu_v: float, x_d: NDArray) -> NDArray:
         """The tracking command (km/s^2, ECI) at the plan's sample j from the measured deputy."""
-        return self.track(plan.u_p[j], plan.x_p[j], nu_v, x_d)
+        return self.track(plan.u_p[j], plan.x_p[j], nu_v, x_d, plan.band)
 
-    def hold(self, nu_v: float, x_d: NDArray, x_v: NDArray) -> NDArray:
-        """The tracking law holding the virtual target after a plan handed the truth to it:
-        -K_a(nu_v) (x_hat - x_v) (km/s^2, ECI)."""
-        return self.track(np.zeros(3), np.asarray(x_v, dtype=float), nu_v, x_d)
+    def hold(self, plan: Plan, nu_v: float, x_d: NDArray, x_v: NDArray) -> NDArray:
+        """The tracking law holding the virtual target after the plan handed the truth to it:
+        -K_a(nu_v) (x_hat - x_v) (km/s^2, ECI), K_a of the plan's gain band."""
+        return self.track(np.zeros(3), np.asarray(x_v, dtype=float), nu_v, x_d, plan.band)
 
-    def track(self, u_ff: NDArray, x_ref: NDArray, nu_v: float, x_d: NDArray) -> NDArray:
-        """u_ff - K_a(nu_v) (x_hat - x_ref), saturated at u_max only as a guard (counted)."""
-        k_a = interpolate_gain(self.gains, nu_v)
+    def track(self, u_ff: NDArray, x_ref: NDArray, nu_v: float, x_d: NDArray, band: int = 0) -> NDArray:
+        """u_ff - K_a(nu_v) (x_hat - x_ref), K_a of gain band ``band``, saturated at u_max only
+        as a guard (counted)."""
+        k_a = interpolate_gain(self.band_gains[band], nu_v)
         u = u_ff - k_a @ (np.asarray(x_d, dtype=float) - x_ref)
         self.guard_saturations += bool(math.sqrt(float(u @ u)) > self.u_max)
         return saturate(u, self.u_max)

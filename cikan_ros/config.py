@@ -160,6 +160,12 @@ class TSGConfig:
     #: The ancillary tube also bounds the truth between samples (docs/robustness.md, "Between
     #: samples, derived"); false: at the samples only, as the ball tube.
     ancillary_between: bool = True
+    #: The ancillary tube's gain schedule (docs/robustness.md, "Gains by range"): a plan that
+    #: starts at a measured range of at least ``ancillary_bands_km[i]`` (km, ascending) tracks
+    #: with the LQ weight ``ancillary_bands_r[i]`` I; nearer, ``ancillary_r_diag``. Each plan
+    #: keeps its gain, so each tube is that of one linear loop. Empty: one gain.
+    ancillary_bands_km: tuple[float, ...] = ()
+    ancillary_bands_r: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         _check(isinstance(self.robust, bool), "tsg.robust", self.robust, "must be true or false")
@@ -181,6 +187,13 @@ class TSGConfig:
         _check(len(self.ancillary_handoff_r_diag) == 3
                and all(math.isfinite(r) and r > 0 for r in self.ancillary_handoff_r_diag),
                "tsg.ancillary_handoff_r_diag", self.ancillary_handoff_r_diag, "must be 3 finite weights > 0")
+        object.__setattr__(self, "ancillary_bands_km", tuple(float(r) for r in self.ancillary_bands_km))
+        object.__setattr__(self, "ancillary_bands_r", tuple(float(r) for r in self.ancillary_bands_r))
+        km, rs = self.ancillary_bands_km, self.ancillary_bands_r
+        _check(all(math.isfinite(r) and r > 0 for r in km) and all(a < b for a, b in zip(km, km[1:])),
+               "tsg.ancillary_bands_km", km, "must be finite ranges > 0 km, ascending")
+        _check(len(rs) == len(km) and all(math.isfinite(r) and r > 0 for r in rs), "tsg.ancillary_bands_r",
+               rs, f"must be {len(km)} finite weights > 0, one per range of tsg.ancillary_bands_km")
         for name in ("sample_period_s", "terminal_pos_km", "terminal_vel_kmps", "tolerance_s",
                      "initial_window_s", "initial_grid_s", "update_period_s"):
             _positive(f"tsg.{name}", getattr(self, name))
@@ -442,6 +455,15 @@ def ancillary_control_config(cfg: "Config") -> ControlConfig:
     FTRE DARE with the LQ weight ``tsg.ancillary_r_diag`` (docs/robustness.md, "The ancillary
     tube")."""
     return dataclasses.replace(cfg.control, r_diag=cfg.tsg.ancillary_r_diag)
+
+
+def ancillary_band_configs(cfg: "Config") -> list[tuple[float, "Config"]]:
+    """The ancillary tube's gain bands (``tsg.ancillary_bands_km``): (the least measured range
+    at which a plan starts in the band, km; the configuration whose ``tsg.ancillary_r_diag`` is
+    the band's weight), ascending from (0, cfg)."""
+    return [(0.0, cfg)] + [(km, cfg.replace(**{"tsg.ancillary_r_diag": [r, r, r], "tsg.ancillary_bands_km": [],
+                                                "tsg.ancillary_bands_r": []}))
+                           for km, r in zip(cfg.tsg.ancillary_bands_km, cfg.tsg.ancillary_bands_r)]
 
 
 def handoff_control_config(cfg: "Config") -> ControlConfig:

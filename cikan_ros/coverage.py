@@ -131,7 +131,7 @@ def held_shift_coverage(cfg: Config, seed: int, governor: str = "conventional") 
     # sample, which shrinks as the loop settles (robust.terminal_ball_after: the docking test).
     radii = np.broadcast_to(trace[term, 6:8], ball.shape)
     if pred.ancillary and len(ball):
-        radii = terminal_balls(pred, trace[term], len(ball) - 1)
+        radii = terminal_balls(pred, trace[term], len(ball) - 1, anchored.band(x_seen0, 0.0))
     for i, k in enumerate(range(term, k_end + 1)):
         t = float(result.t[k])
         x_v = loop.anchor(through_si(seen_c[k]), t).orbit.state(t + tau)

@@ -190,7 +190,7 @@ class ClosedLoop(Schedule):
             if j is not None:
                 return self.ancillary.command(self.plan, j, float(nu_v), x_d)
             if self.plan.holds_target:
-                return self.ancillary.hold(float(nu_v), x_d, x_v)
+                return self.ancillary.hold(self.plan, float(nu_v), x_d, x_v)
             return ftre_control(self.ancillary.handoff_gains, float(nu_v), x_d, x_v, self.config.control.u_max_kmps2)
         return ftre_control(pred.gains, float(nu_v), x_d, x_v, self.config.control.u_max_kmps2)
 

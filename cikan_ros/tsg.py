@@ -38,7 +38,7 @@ import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .config import Config, Side, control_config, prediction_gravity
+from .config import Config, Side, ancillary_band_configs, control_config, prediction_gravity
 from .constraints import (C_UMAX, constraint_params, h1_line_of_sight_kernel, h2_thrust_kernel,
                           h3_approach_velocity_kernel)
 from .control import ftre_control_kernel, gain_table
@@ -441,6 +441,10 @@ class Predictor:
     cparams: NDArray    # packed constraint parameters
     tparams: NDArray    # packed prediction parameters
     rparams: NDArray    # packed robustness parameters (cikan_ros.robust)
+    #: The ancillary tube's gain bands (``tsg.ancillary_bands_km``): (least measured range, km;
+    #: packed robustness parameters of that band's tracking gain), ascending from (0, rparams).
+    #: Empty: one gain. A rollout takes the band of its measured range at sample 0 (:meth:`band`).
+    rbands: tuple[tuple[float, NDArray], ...] = ()
 
     @classmethod
     def from_config(cls, cfg: Config) -> "Predictor":
@@ -450,9 +454,13 @@ class Predictor:
         tp = np.array([cfg.tsg.sample_period_s, n_samples, cfg.tsg.rk4_substeps,
                        cfg.tsg.terminal_pos_km, cfg.tsg.terminal_vel_kmps,
                        j2_coefficient(prediction_gravity(cfg))], dtype=float)
+        rp = robust_params(cfg, orbit)
+        bands: tuple[tuple[float, NDArray], ...] = ()
+        if cfg.tsg.robust and cfg.tsg.tube == "ancillary" and cfg.tsg.ancillary_bands_km:
+            bands = tuple((km, rp if km == 0.0 else robust_params(band, orbit))
+                          for km, band in ancillary_band_configs(cfg))
         return cls(cfg, orbit, gain_table(orbit, control_config(cfg)),
-                   constraint_params(cfg.constraints, cfg.control.u_max_kmps2, cfg.side), tp,
-                   robust_params(cfg, orbit))
+                   constraint_params(cfg.constraints, cfg.control.u_max_kmps2, cfg.side), tp, rp, bands)
 
     def nominal(self) -> "Predictor":
         """This model with nominal Verify (robustness off, and so the nominal controller and
@@ -527,6 +535,23 @@ class Predictor:
     def __post_init__(self) -> None:
         object.__setattr__(self, "_table", ChiefTable(float(self.tparams[T_SAMPLE]), self.n_samples))
 
+    def band(self, x_d: ArrayLike, t: float) -> int:
+        """The ancillary tube's gain band (index into :attr:`rbands`, 0 without bands) of a
+        rollout from the measured deputy x_d (km, km/s, ECI) at t (s): the last whose least range
+        the measured range to the predicted chief at t reaches."""
+        if not self.rbands:
+            return 0
+        x = np.asarray(x_d, dtype=float)
+        rng = float(np.linalg.norm(x[:3] - self.orbit.state(t)[:3]))
+        return max(i for i, (km, _) in enumerate(self.rbands) if rng >= km)
+
+    def band_params(self, band: int) -> NDArray:
+        """The packed robustness parameters of gain band ``band`` (:meth:`band`)."""
+        return self.rbands[band][1] if self.rbands else self.rparams
+
+    def _rp(self, x: NDArray, t: float) -> NDArray:
+        return self.rbands[self.band(x, t)][1] if self.rbands else self.rparams
+
     def cache(self, t: float) -> ChiefCache:
         """Chief states for the Verify/bisect calls at update time t: a view into the process's
         :class:`ChiefTable` when t lies on the sample grid, else a private array."""
@@ -558,7 +583,7 @@ class Predictor:
         """
         x, t = self._state(x_d, t)
         c = self._cache(t, cache)
-        return bool(verify_kernel(self.orbit.params, self.gains, self.cparams, self.tparams, self.rparams, x, t,
+        return bool(verify_kernel(self.orbit.params, self.gains, self.cparams, self.tparams, self._rp(x, t), x, t,
                                   self._shift(tau, "tau"), c.rows, c.t0))
 
     def rollout_trace(self, x_d: ArrayLike, t: float, tau: float) -> tuple[bool, NDArray]:
@@ -570,7 +595,7 @@ class Predictor:
         x, t = self._state(x_d, t)
         c = self.cache(t)
         trace = np.full((self.n_samples, TRACE_WIDTH), math.nan)
-        ok = rollout_kernel(self.orbit.params, self.gains, self.cparams, self.tparams, self.rparams, x, t,
+        ok = rollout_kernel(self.orbit.params, self.gains, self.cparams, self.tparams, self._rp(x, t), x, t,
                             self._shift(tau, "tau"), c.rows, c.t0, trace)
         return bool(ok), trace
 
@@ -606,7 +631,7 @@ class Predictor:
         x, t = self._state(x_d, t)
         c = self._cache(t, cache)
         tau_ns, index, calls = first_feasible_kernel(
-            self.orbit.params, self.gains, self.cparams, self.tparams, self.rparams, x, t, cands_ns,
+            self.orbit.params, self.gains, self.cparams, self.tparams, self._rp(x, t), x, t, cands_ns,
             int(lo_ns), int(budget), self.tol_ns, c.rows, c.t0)
         return ns_to_seconds(tau_ns), int(index), int(calls)
 
@@ -620,7 +645,7 @@ class Predictor:
             raise StateError(f"bisection bracket is empty: hi = {hi} is farther from 0 than lo = {lo}")
         c = self._cache(t, cache)
         lo_ns, hi_ns, calls = bisect_kernel(self.orbit.params, self.gains, self.cparams, self.tparams,
-                                            self.rparams, x, t, to_ns(lo), to_ns(hi), self.tol_ns, c.rows, c.t0,
+                                            self._rp(x, t), x, t, to_ns(lo), to_ns(hi), self.tol_ns, c.rows, c.t0,
                                             -1 if budget is None else int(budget))
         return ns_to_seconds(lo_ns), ns_to_seconds(hi_ns), int(calls)
 
@@ -632,7 +657,7 @@ class Predictor:
             return 0.0, 0
         c = self.cache(t)
         tau, calls = conventional_update_kernel(self.orbit.params, self.gains, self.cparams,
-                                                self.tparams, self.rparams, x, t, to_ns(tau_prev), self.tol_ns,
+                                                self.tparams, self._rp(x, t), x, t, to_ns(tau_prev), self.tol_ns,
                                                 c.rows, c.t0)
         return ns_to_seconds(tau), int(calls)
 
@@ -643,7 +668,7 @@ class Predictor:
         cfg = self.config.tsg
         c = self.cache(t)
         tau, calls, found = initial_search_kernel(self.orbit.params, self.gains, self.cparams,
-                                                  self.tparams, self.rparams, x, t, to_ns(cfg.initial_window_s),
+                                                  self.tparams, self._rp(x, t), x, t, to_ns(cfg.initial_window_s),
                                                   to_ns(cfg.initial_grid_s), self.tol_ns, c.rows, c.t0,
                                                   int(self.side))
         if not found:

@@ -292,3 +292,91 @@ def test_the_ros_graph_flies_the_ancillary_tube_as_the_offline_loop(tmp_path, ro
         assert metrics[key] == off[key], key
     # the graph's commands are the offline loop's, bit for bit, and none of those needed the guard
     assert off["success"] and off["violations"] == 0 and off["guard_saturations"] == 0
+
+
+# -- gains by range (tsg.ancillary_bands_km) ------------------------------------------------------
+
+def _banded(km: float, r: float):
+    return CFG.replace(**{"tsg.ancillary_bands_km": [km], "tsg.ancillary_bands_r": [r]})
+
+
+def test_a_rollout_is_verified_with_the_gain_of_its_starting_range():
+    """A Monte Carlo start (~100 km from the chief): with one band from 1 km at R_a = 1e11 I the
+    rollout is, bit for bit, the one robust Verify gives with ancillary_r_diag = 1e11 I and no bands;
+    with the band from 1000 km it is the default's (1e10 I). The two gains give different tubes,
+    so the comparison can fail."""
+    from cikan_ros.mission import sample_start
+
+    x0 = sample_start(PRED, 2)
+    tau, _ = PRED.initial_shift(x0, 0.0)
+    single = Predictor.from_config(CFG.replace(**{"tsg.ancillary_r_diag": [1e11] * 3}))
+    far, near = Predictor.from_config(_banded(1.0, 1e11)), Predictor.from_config(_banded(1000.0, 1e11))
+    assert (far.band(x0, 0.0), near.band(x0, 0.0)) == (1, 0)
+    traces = {name: p.rollout_trace(x0, 0.0, tau)[1] for name, p in
+              (("default", PRED), ("single", single), ("far", far), ("near", near))}
+    assert np.array_equal(traces["far"], traces["single"], equal_nan=True)
+    assert np.array_equal(traces["near"], traces["default"], equal_nan=True)
+    assert not np.array_equal(traces["single"][:, 6], traces["default"][:, 6], equal_nan=True)
+
+
+def test_a_plan_is_tracked_with_the_gain_of_its_band():
+    """The controller flies the plan with the K_a it was verified with: u_p - K_a(nu) (x_hat - x_p),
+    K_a the FTRE gain of the band's weight from scipy's DARE (gain_table), not the default's."""
+    from cikan_ros.mission import ClosedLoop, sample_start
+
+    cfg = _banded(1.0, 1e11)
+    pred = Predictor.from_config(cfg)
+    x0 = sample_start(pred, 2)
+    tau, _ = pred.initial_shift(x0, 0.0)
+    loop = ClosedLoop(pred)
+    loop.observe(0, pred.orbit.state(0.0), None)
+    assert loop.take_effect(0, tau, x0) and loop.plan.band == 1
+    x_hat = x0 + np.r_[0.01, -0.02, 0.005, 1e-5, 0.0, -2e-5]
+    x_v, nu_v = pred.orbit.state_and_anomaly(tau)
+    k_a = interpolate_gain(gain_table(pred.orbit, ancillary_control_config(
+        cfg.replace(**{"tsg.ancillary_r_diag": [1e11] * 3}))), float(nu_v))
+    want = loop.plan.u_p[0] - k_a @ (x_hat - loop.plan.x_p[0])
+    assert np.allclose(loop.command(0, tau, x_hat, pred.orbit.state(0.0)), want, rtol=1e-12, atol=1e-18)
+    k_default = interpolate_gain(gain_table(pred.orbit, ancillary_control_config(CFG)), float(nu_v))
+    assert not np.allclose(want, loop.plan.u_p[0] - k_default @ (x_hat - loop.plan.x_p[0]), rtol=1e-6, atol=0)
+
+
+def test_the_gain_bands_are_checked():
+    for km, r, key in (([2.0, 1.0], [1e11, 1e12], "tsg.ancillary_bands_km"),
+                       ([0.0], [1e11], "tsg.ancillary_bands_km"),
+                       ([1.0, 2.0], [1e11], "tsg.ancillary_bands_r"),
+                       ([1.0], [-1e11], "tsg.ancillary_bands_r")):
+        with pytest.raises(ConfigError, match=key):
+            load_config(**{"tsg.ancillary_bands_km": km, "tsg.ancillary_bands_r": r})
+
+
+def test_a_model_of_one_gain_is_refused_under_a_gain_schedule():
+    """Labels made with one tracking gain are not those of a schedule: the card's label
+    configuration names the bands only when set, and the mismatch names them."""
+    from cikan_ros.learn.modelfile import label_config, label_mismatch
+
+    card = {"config": CFG.flat()}
+    assert "tsg.ancillary_bands_km" not in label_config(CFG.flat())
+    assert label_mismatch(card, CFG.flat()) is None
+    assert "tsg.ancillary_bands_km" in label_mismatch(card, _banded(1.0, 1e11).flat())
+
+
+def test_cikan_tube_lists_each_gain_band_of_a_scenario():
+    """`cikan tube --scenario geo --truth realistic --robust --set tsg.tube=ancillary`: one row per
+    band of the scenario's schedule (config/scenarios/geo.yaml), its weight, and a tracking loop
+    that is slower (lam nearer 1) and softer (smaller |K_p|) the farther the band starts."""
+    import json
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-m", "cikan_ros.cli", "tube", "--scenario", "geo", "--truth",
+                          "realistic", "--robust", "--set", "tsg.tube=ancillary"], capture_output=True,
+                         text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    bands = json.loads(out.stdout)["ancillary"]
+    from cikan_ros.config import scenario_overrides
+
+    geo = scenario_overrides("geo")
+    assert [b["from_km"] for b in bands] == [0.0, *geo["tsg.ancillary_bands_km"]]
+    assert [b["r_diag"][0] for b in bands] == [geo["tsg.ancillary_r_diag"][0], *geo["tsg.ancillary_bands_r"]]
+    assert all(a["lam"] < b["lam"] < 1.0 and a["kp"] > b["kp"] for a, b in zip(bands, bands[1:]))

@@ -99,15 +99,17 @@ def test_cikan_coverage_refuses_nominal_verify_in_one_line():
 
 
 def test_the_sweep_applies_set_over_each_scenario():
-    """`cikan coverage --sweep --set tsg.tube=ancillary` flies every scenario with the ancillary
-    tube, GEO too (whose scenario sets the ball tube); without it GEO keeps its own."""
+    """`cikan coverage --sweep --set tsg.tube=ball` flies every scenario with the ball tube, GEO
+    too (whose scenario sets the ancillary tube with its own gains by range); without it each
+    scenario keeps its own values."""
     from cikan_ros.cli import build_parser
     from cikan_ros.commands.coverage import sweep_configs
 
     base = ["coverage", "--sweep", "--truth", "realistic", "--robust"]
-    forced = dict(sweep_configs(build_parser().parse_args([*base, "--set", "tsg.tube=ancillary"])))
+    forced = dict(sweep_configs(build_parser().parse_args([*base, "--set", "tsg.tube=ball"])))
     own = dict(sweep_configs(build_parser().parse_args(base)))
-    assert {c.tsg.tube for c in forced.values()} == {"ancillary"}
-    assert own["geo, behind"].tsg.tube == "ball" and own["paper, ahead"].tsg.tube == "ancillary"
+    assert {c.tsg.tube for c in forced.values()} == {"ball"}
+    assert own["geo, behind"].tsg.tube == "ancillary" and own["geo, behind"].tsg.ancillary_bands_km
+    assert not own["paper, ahead"].tsg.ancillary_bands_km
     assert own["geo, ahead"].mission.approach == "ahead" and own["geo, ahead"].scenario.name == "geo"
     assert forced["leo, behind"].truth.name == "realistic" and forced["leo, behind"].tsg.robust

@@ -13,7 +13,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="Print (JSON) the control weights, the FTRE loop's gain margin and "
                                    "the error-tube constants of robust Verify for the configuration's "
                                    "declared thruster errors (docs/robustness.md); declared errors "
-                                   "that destabilise the loop are reported under 'unstable'.")
+                                   "that destabilise the loop are reported under 'unstable'. Under "
+                                   "the ancillary tube, 'ancillary' lists each gain band's tracking "
+                                   "loop (least range, weight, lam, |K_p|, |K_v|).")
     add_config_args(p)
     p.set_defaults(func=run)
 
@@ -22,7 +24,7 @@ def run(args: argparse.Namespace) -> int:
     import json
     import math
 
-    from ..config import control_config
+    from ..config import ancillary_band_configs, ancillary_control_config, control_config
     from ..orbit import KeplerOrbit
     from ..robust import UnstableLoopError, gain_margin, tube_constants
 
@@ -36,5 +38,18 @@ def run(args: argparse.Namespace) -> int:
                                   math.radians(truth.bound("thrust_pointing_max_deg"))))
     except UnstableLoopError as exc:
         out["unstable"] = str(exc)
+    if cfg.tsg.robust and cfg.tsg.tube == "ancillary":
+        bands = []
+        for km, band in ancillary_band_configs(cfg):
+            track = ancillary_control_config(band)
+            row: dict[str, object] = {"from_km": km, "r_diag": list(track.r_diag)}
+            try:
+                tc = tube_constants(orbit, track, truth.bound("thrust_bias_max"),
+                                    math.radians(truth.bound("thrust_pointing_max_deg")))
+                row.update({k: tc[k] for k in ("lam", "kp", "kv")})
+            except UnstableLoopError as exc:
+                row["unstable"] = str(exc)
+            bands.append(row)
+        out["ancillary"] = bands
     print(json.dumps(out, indent=1))
     return 0

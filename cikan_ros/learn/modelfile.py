@@ -171,6 +171,9 @@ def label_config(flat: Mapping[str, Any]) -> dict[str, Any]:
             # the FTRE law of the terminal handoff (before it: the robust controller's)
             out["tsg.ancillary_handoff_r_diag"] = flat.get("tsg.ancillary_handoff_r_diag",
                                                            flat.get("control.robust_r_diag"))
+            # the gain schedule by range (named only when set: configurations before it had one gain)
+            if flat.get("tsg.ancillary_bands_km"):
+                out.update({k: flat.get(k) for k in ("tsg.ancillary_bands_km", "tsg.ancillary_bands_r")})
     return out
 
 
