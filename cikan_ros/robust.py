@@ -66,20 +66,39 @@ ANCILLARY_KEYS = ("lam", "kp", "kv", "cpe", "cve") + tuple(
 R_BETWEEN = 44 + len(ANCILLARY_KEYS)
 N_RPARAMS = R_BETWEEN + 1
 
-#: Powers of the closed-loop matrix scanned for the constants C (lam^200 < 1e-11 here).
+#: Powers of the closed-loop matrix scanned for the constants C: at least this many, and at least
+#: POWER_SPAN / (1 - lam) (a slow loop's transient peaks later: lam = 0.993 near m = 145).
 N_POWERS = 200
-#: True anomalies (deg) of the gain table at which the closed loop is analysed.
-ANALYSIS_STEP_DEG = 15.0
+POWER_SPAN = 20.0
+#: ... and at most this many (lam = 0.999: a tube 1000 times its forcing, of no use to Verify).
+MAX_POWERS = 20000
+#: True anomalies (deg) between which the closed loop is analysed for the constants that take
+#: powers (lam, C0, D, C_n, E); the grid's step enters the bound (:func:`_with_grid_term`).
+ANALYSIS_STEP_DEG = 7.5
+#: The pointing-error axes of the extreme thruster maps: the coordinate axes for the constants
+#: that take powers (over 15 axes they spread by less than 1e-4), and for the DC gains G and H,
+#: which cost one solve per loop, the 13 directions of the cube's axes and diagonals on every
+#: cell of the gain table.
+POWER_AXES = ((0.0, 0.0, 1.0), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0))
+DC_AXES = POWER_AXES + tuple(np.array(a) / np.linalg.norm(a) for a in (
+    (1, 1, 0), (1, -1, 0), (1, 0, 1), (1, 0, -1), (0, 1, 1), (0, 1, -1),
+    (1, 1, 1), (1, 1, -1), (1, -1, 1), (-1, 1, 1)))
 
 
-def thrust_matrices(bias: float, pointing_rad: float) -> list[NDArray]:
+#: The relative margin on lam for the pointing axes between DC_AXES: over 200 random axes on
+#: the gain table's grid the spectral radius exceeds the 13 axes' by at most 1.7e-5 (the paper's
+#: robust controller; 5.8e-6 for its tracking loop), six times below it.
+LAM_AXIS_MARGIN = 1e-4
+
+
+def thrust_matrices(bias: float, pointing_rad: float, axes: tuple = POWER_AXES) -> list[NDArray]:
     """Extreme thruster maps M = (1 + b) R(theta) of the declared set |b| <= bias, theta <=
-    pointing: b = -bias, 0, +bias times no rotation or a rotation by the full angle about two
-    axes (the FTRE loop is isotropic to well within a percent, so the axis matters little)."""
+    pointing: b = -bias, 0, +bias times no rotation or a rotation by the full angle about each
+    of ``axes`` (ECI unit vectors)."""
     from .truth import rotation
 
-    rots = [np.eye(3)] + ([rotation(np.array(a), pointing_rad) for a in
-                           ([0.0, 0.0, 1.0], [1.0, 0.0, 0.0])] if pointing_rad > 0 else [])
+    rots = [np.eye(3)] + ([rotation(np.asarray(a, dtype=float), pointing_rad) for a in axes]
+                          if pointing_rad > 0 else [])
     gains = sorted({1.0 - bias, 1.0, 1.0 + bias})
     return [g * r for g in gains for r in rots]
 
@@ -88,79 +107,148 @@ class UnstableLoopError(ConfigError):
     """The declared thruster errors destabilise the FTRE loop: no error tube exists."""
 
 
+def _with_grid_term(values: NDArray) -> float:
+    """The sup over the orbit of a quantity sampled at anomalies evenly spaced around it
+    (``values``, (n,), each the worst over the thruster maps there): the largest sample plus the
+    grid's step times the steepest change between neighbouring samples, a Lipschitz term for
+    the anomalies between them (over an interval of step s, a function with slope <= L exceeds
+    its larger end by at most L s / 2; L is taken as twice the steepest neighbouring slope)."""
+    slopes = np.abs(np.diff(np.append(values, values[0])))  # per step, around the orbit
+    steep = np.maximum(slopes, np.maximum(np.roll(slopes, 1), np.roll(slopes, -1)))
+    return float(np.max(np.maximum(values, np.roll(values, -1)) + steep))
+
+
+@functools.lru_cache(maxsize=16)
+def frozen_loops(orbit: KeplerOrbit, cfg: ControlConfig) -> tuple[NDArray, NDArray, NDArray]:
+    """The frozen-time loop at every cell of the gain table: (A_d (n, 6, 6), B_d (n, 6, 3) of the
+    dynamics linearised about the chief at the cell's true anomaly, the gains K (n, 3, 6))."""
+    table = gain_table(orbit, cfg)
+    n_cells = table.shape[0] - 1
+    a_ds, b_ds = zip(*(zoh_discretise(linearisation(elements_to_state(
+        orbit.a, orbit.e, orbit.i, orbit.raan, orbit.argp, 2.0 * math.pi * j / n_cells, orbit.mu)[:3],
+        orbit.mu), B_INPUT, cfg.period_s) for j in range(n_cells)))
+    return np.asarray(a_ds), np.asarray(b_ds), table[:n_cells]
+
+
+def loop_radius(orbit: KeplerOrbit, cfg: ControlConfig, bias: float = 0.0,
+                pointing_rad: float = 0.0) -> tuple[float, NDArray, NDArray]:
+    """lam before the check: the spectral radius of Phi_M = A_d - B_d M K over every cell of the
+    gain table and the extreme maps about DC_AXES, with the grid's term and LAM_AXIS_MARGIN (the
+    axes between DC_AXES: over 200 random axes the radius exceeds theirs by at most 1.7e-5);
+    also Phi_M and B_d M K (cells, maps, 6, 6) for the DC gains."""
+    a_all, b_all, k_all = frozen_loops(orbit, cfg)
+    dc_maps = np.asarray(thrust_matrices(bias, pointing_rad, DC_AXES))
+    bmk_all = np.einsum("cij,mjk,ckl->cmil", b_all, dc_maps, k_all)
+    phi_all = a_all[:, None] - bmk_all
+    radius = np.max(np.abs(np.linalg.eigvals(phi_all)), axis=(1, 2))
+    return _with_grid_term(radius) * (1.0 + LAM_AXIS_MARGIN), phi_all, bmk_all
+
+
 @functools.lru_cache(maxsize=16)
 def tube_constants(orbit: KeplerOrbit, cfg: ControlConfig, bias: float = 0.0,
                    pointing_rad: float = 0.0) -> dict[str, float]:
     """lam, the C, G, D, H and E constants and the gain norms |K_p|, |K_v| of the FTRE closed loop
     Phi_M = A_d - B_d M K flown with the thruster map M (:func:`thrust_matrices`), each the worst
     over M (E: over the nominal M = I only, the prediction's loop) and over the chief orbit's true
-    anomaly (frozen-time analysis, every ANALYSIS_STEP_DEG). Raises UnstableLoopError when some M
-    makes the loop unstable."""
+    anomaly (frozen-time analysis every ANALYSIS_STEP_DEG with the grid's Lipschitz term,
+    :func:`_with_grid_term`; lam, G and H on the gain table's grid and DC_AXES: :func:`loop_radius`).
+    Raises UnstableLoopError when some M makes the loop unstable."""
     table = gain_table(orbit, cfg)
     n_cells = table.shape[0] - 1
     stride = max(1, round(ANALYSIS_STEP_DEG / cfg.grid_deg))
     keys = ("lam", "kp", "kv") + tuple(f"{c}{row}{col}" for c in ("c0", "g", "d", "h", "e", "cn")
                                         for row in "pv" for col in "pv") + ("cpe", "cve")
     out = {k: 0.0 for k in keys}
-    systems = []
-    for j in range(0, n_cells, stride):
-        nu = 2.0 * math.pi * j / n_cells
-        r = elements_to_state(orbit.a, orbit.e, orbit.i, orbit.raan, orbit.argp, nu, orbit.mu)[:3]
-        a_d, b_d = zoh_discretise(linearisation(r, orbit.mu), B_INPUT, cfg.period_s)
-        k = table[j]
-        out["kp"] = max(out["kp"], float(np.linalg.norm(k[:, :3], 2)))
-        out["kv"] = max(out["kv"], float(np.linalg.norm(k[:, 3:], 2)))
-        for mat in thrust_matrices(bias, pointing_rad):
-            bmk = b_d @ mat @ k
-            phi = a_d - bmk
-            systems.append((phi, b_d, bmk, bool(np.array_equal(mat, np.eye(3)))))
-            out["lam"] = max(out["lam"], float(np.max(np.abs(np.linalg.eigvals(phi)))))
-    if not out["lam"] < 1.0 - 1e-6:
+    blocks = (("p", slice(0, 3)), ("v", slice(3, 6)))
+    a_all, b_all, _ = frozen_loops(orbit, cfg)
+    lam, phi_all, bmk_all = loop_radius(orbit, cfg, bias, pointing_rad)
+    if not lam < 1.0 - 1e-6:
         raise UnstableLoopError(
             f"thruster errors of {bias:.1%} in magnitude and {math.degrees(pointing_rad):.2f} deg in "
             f"pointing destabilise the FTRE loop with control weight R = {cfg.r_diag[0]:g} I (spectral "
-            f"radius {out['lam']:.4f} >= 1): no error tube exists; a larger control.robust_r_diag "
-            "widens the loop's gain margin (cikan tube prints it)")
-    lam = out["lam"] = out["lam"] * (1.0 + 1e-6)
-    rows = {"p": np.hstack([np.eye(3), np.zeros((3, 3))]), "v": np.hstack([np.zeros((3, 3)), np.eye(3)])}
+            f"radius {lam:.4f} >= 1 over the orbit): no error tube exists; a larger "
+            "control.robust_r_diag widens the loop's gain margin (cikan tube prints it)")
+    out["lam"] = lam
 
-    def worst(key: str, value: float) -> None:
-        out[key] = max(out[key], value)
+    def loop(j: int, maps: list[NDArray]) -> tuple[NDArray, NDArray, NDArray]:
+        bmk = np.einsum("ij,mjk,kl->mil", b_all[j], np.asarray(maps), table[j])
+        return a_all[j] - bmk, b_all[j], bmk
 
-    scale = lam ** -np.arange(N_POWERS + 1.0)
-    for phi, b_d, bmk, nominal in systems:
-        powers = np.empty((N_POWERS + 2, 6, 6))
-        powers[0] = np.eye(6)
-        for m in range(N_POWERS + 1):
-            powers[m + 1] = phi @ powers[m]
-        # DC response to a constant navigation error: sum_l Phi^l B M K = (I - Phi)^-1 B M K, and
-        # what is left of it after m steps: D_m = sum_{l > m} Phi^l B M K = Phi^(m+1) (DC).
-        dc = np.linalg.solve(np.eye(6) - phi, bmk)
-        # What of a constant navigation error the controller still sees once the loop has
-        # settled: x_truth + delta - x_pred = (I - G) delta (the deputy flies to the target
-        # displaced by delta, so a position error cancels, 1 - G_pp ~ 1e-4).
-        seen = np.eye(6) - dc
-        for row, rmat in rows.items():
-            for col, cols in (("p", slice(0, 3)), ("v", slice(3, 6))):
-                worst(f"h{row}{col}", float(np.linalg.norm(rmat @ seen[:, cols], 2)))
-            rp_ = rmat @ powers  # (N + 2, 3, 6)
-            for col, cols in (("p", slice(0, 3)), ("v", slice(3, 6))):
-                worst(f"g{row}{col}", float(np.linalg.norm(rmat @ dc[:, cols], 2)))
-                worst(f"d{row}{col}", float(np.max(norms(rp_[1:] @ dc[:, cols]) * scale)))
-                worst(f"c0{row}{col}", float(np.max(norms(rp_[:-1][:, :, cols]) * scale)))
+    # The DC gains G = (I - Phi)^-1 B M K and H (blocks of I - G): no powers, so on every cell of
+    # the gain table and every axis of DC_AXES, no grid term needed.
+    dc_all = np.linalg.solve(np.eye(6) - phi_all, bmk_all)
+    seen_all = np.eye(6) - dc_all
+    for row, rs in blocks:
+        for col, cs in blocks:
+            out[f"g{row}{col}"] = float(np.max(norms(dc_all[..., rs, cs])))
+            out[f"h{row}{col}"] = float(np.max(norms(seen_all[..., rs, cs])))
+
+    # The constants that take powers, per analysed anomaly (worst over the maps there), then the
+    # sup over the orbit with the grid's term.
+    maps = thrust_matrices(bias, pointing_rad)
+    nominal = [bool(np.array_equal(m, np.eye(3))) for m in maps]
+    systems = []
+    for j in range(0, n_cells, stride):
+        systems.append(loop(j, maps))
+    out["kp"] = float(np.max(norms(table[:n_cells, :, :3])))
+    out["kv"] = float(np.max(norms(table[:n_cells, :, 3:])))
+    n_powers = min(MAX_POWERS, max(N_POWERS, math.ceil(POWER_SPAN / (1.0 - lam))))
+    # Every analysed loop at once: (S, 6, 6) with S = anomalies x maps, powered in step.
+    phi = np.concatenate([sy[0] for sy in systems])
+    bmk = np.concatenate([sy[2] for sy in systems])
+    b_d = np.concatenate([np.broadcast_to(sy[1], (len(maps), 6, 3)) for sy in systems])
+    nominal = np.tile(nominal, len(systems))
+    # DC response to a constant navigation error: sum_l Phi^l B M K = (I - Phi)^-1 B M K, and
+    # what is left of it after m steps: D_m = sum_{l > m} Phi^l B M K = Phi^(m+1) (DC).
+    dc = np.linalg.solve(np.eye(6) - phi, bmk)
+    best = {k: np.zeros(len(phi)) for k in keys if k[0] in "cde"}
+    power = np.broadcast_to(np.eye(6), phi.shape).copy()
+    for m in range(n_powers + 1):
+        s = lam ** -m
+        nxt = phi @ power
+        pb, pn, pd = power @ b_d, power @ bmk, nxt @ dc
+        for row, rs in blocks:
+            for col, cs in blocks:
+                c0 = norms(power[:, rs, cs])
+                np.maximum(best[f"c0{row}{col}"], c0 * s, out=best[f"c0{row}{col}"])
+                # the prediction's own loop (M = I): how far its transient can carry it
+                np.maximum(best[f"e{row}{col}"], np.where(nominal, c0, 0.0), out=best[f"e{row}{col}"])
+                np.maximum(best[f"d{row}{col}"], norms(pd[:, rs, cs]) * s, out=best[f"d{row}{col}"])
                 # the loop's response to the navigation error itself (not its changes), for an
                 # error that may jump anywhere in its bound at every sample (truth.nav_model filter)
-                worst(f"cn{row}{col}", float(np.max(norms(rp_[:-1] @ bmk[:, cols]) * scale)))
-            worst(f"c{row}e", float(np.max(norms(rp_[:-1] @ b_d) * scale)))
-            if nominal:  # the prediction's own loop: how far its transient can carry it
-                for col, cols in (("p", slice(0, 3)), ("v", slice(3, 6))):
-                    worst(f"e{row}{col}", float(np.max(norms(rp_[:-1][:, :, cols]))))
+                np.maximum(best[f"cn{row}{col}"], norms(pn[:, rs, cs]) * s, out=best[f"cn{row}{col}"])
+            np.maximum(best[f"c{row}e"], norms(pb[:, rs]) * s, out=best[f"c{row}e"])
+        power = nxt
+    # per analysed anomaly, the worst over its maps
+    per_anomaly = {k: v.reshape(len(systems), len(maps)).max(axis=1) for k, v in best.items()}
+    for k, values in per_anomaly.items():
+        out[k] = _with_grid_term(values)
     return out
 
 
 def norms(mats: NDArray) -> NDArray:
-    """Spectral norms of a stack of matrices (..., r, c)."""
-    return np.linalg.norm(mats, 2, axis=(-2, -1))
+    """Spectral norms of a stack of matrices (..., r, c). For 3 x 3 blocks (every block of the
+    tube constants) in closed form, without a LAPACK call per matrix: the largest eigenvalue of
+    the Gram matrix X^T X by the trigonometric solution of its characteristic cubic (O. K.
+    Smith, "Eigenvalues of a symmetric 3 x 3 matrix", Comm. ACM 4, 1961), raised by 1e-9 of the
+    Gram's trace to cover its rounding (an upper bound; tested against numpy's SVD)."""
+    mats = np.asarray(mats, dtype=float)
+    if mats.shape[-2:] != (3, 3):
+        return np.linalg.norm(mats, 2, axis=(-2, -1))
+    g = np.swapaxes(mats, -1, -2) @ mats
+    tr = g[..., 0, 0] + g[..., 1, 1] + g[..., 2, 2]
+    q = tr / 3.0
+    p1 = g[..., 0, 1] ** 2 + g[..., 0, 2] ** 2 + g[..., 1, 2] ** 2
+    p2 = (g[..., 0, 0] - q) ** 2 + (g[..., 1, 1] - q) ** 2 + (g[..., 2, 2] - q) ** 2 + 2.0 * p1
+    p = np.sqrt(p2 / 6.0)
+    safe = np.where(p > 0.0, p, 1.0)
+    b = (g - q[..., None, None] * np.eye(3)) / safe[..., None, None]
+    det = (b[..., 0, 0] * (b[..., 1, 1] * b[..., 2, 2] - b[..., 1, 2] * b[..., 2, 1])
+           - b[..., 0, 1] * (b[..., 1, 0] * b[..., 2, 2] - b[..., 1, 2] * b[..., 2, 0])
+           + b[..., 0, 2] * (b[..., 1, 0] * b[..., 2, 1] - b[..., 1, 1] * b[..., 2, 0]))
+    r = np.clip(det / 2.0, -1.0, 1.0)
+    top = np.where(p > 0.0, q + 2.0 * p * np.cos(np.arccos(r) / 3.0), q)
+    return np.sqrt(np.maximum(top, 0.0) + 1e-9 * tr)
 
 
 def j2_gradient_bound(r_min_km: float, mu: float) -> float:
@@ -462,14 +550,13 @@ def tube_next(rp: NDArray, u_max: float, ts: float, x: NDArray, xc: NDArray, u: 
 
 def gain_margin(orbit: KeplerOrbit, cfg: ControlConfig, tol: float = 1e-4) -> float:
     """The largest thrust magnitude error (fraction, no pointing error) the FTRE loop stays
-    stable under, by bisection on :func:`tube_constants`."""
+    stable under, by bisection on :func:`loop_radius` (lam < 1, as :func:`tube_constants` asks)."""
     lo, hi = 0.0, 8.0
     while hi - lo > tol:
         mid = 0.5 * (lo + hi)
-        try:
-            tube_constants(orbit, cfg, mid, 0.0)
+        if loop_radius(orbit, cfg, mid, 0.0)[0] < 1.0 - 1e-6:
             lo = mid
-        except UnstableLoopError:
+        else:
             hi = mid
     return lo
 

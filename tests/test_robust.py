@@ -304,3 +304,75 @@ def test_the_robust_weight_keeps_a_tube_at_twice_the_realistic_bounds():
     assert lam < 0.9
     with pytest.raises(UnstableLoopError):
         tube_constants(ORBIT, CFG.control, 0.04, math.radians(2.0))
+
+
+# -- the constants' sup over the orbit and the thruster set (the grid's step in the bound) -------
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31), scale=st.floats(1e-12, 1e6), rank=st.integers(1, 3))
+def test_closed_form_block_norms_bound_numpys_svd(seed, scale, rank):
+    """robust.norms (3 x 3 in closed form, Smith 1961) is an upper bound of numpy's spectral norm
+    within 1e-8, for full-rank, rank-deficient and repeated-singular-value blocks."""
+    from cikan_ros.robust import norms
+
+    rng = np.random.default_rng(seed)
+    m = rng.normal(size=(64, 3, rank)) @ rng.normal(size=(64, rank, 3)) * scale
+    m[0] = np.eye(3) * scale
+    ref = np.linalg.norm(m, 2, axis=(-2, -1))
+    got = norms(m)
+    assert np.all(got >= ref) and np.all(got <= ref * (1.0 + 1e-8) + 1e-300)
+
+
+def test_the_grid_term_bounds_a_smooth_function_between_its_samples():
+    """_with_grid_term on 48 samples around the orbit bounds the function on a 100x finer grid and
+    is no less than the largest sample (f varies as the closed-loop radius does: a sharp peak)."""
+    from cikan_ros.robust import _with_grid_term
+
+    nu = np.linspace(0.0, 2.0 * np.pi, 4800, endpoint=False)
+    for f in (lambda x: 0.8 + 0.01 * np.cos(x), lambda x: 0.9 + 0.05 / (1.0 + 0.74 * np.cos(x)) ** 3 * 0.01):
+        samples = f(nu[::100])
+        bound = _with_grid_term(samples)
+        assert bound >= samples.max() and bound >= f(nu).max()
+
+
+def test_tube_constants_bound_the_loop_between_the_analysed_anomalies_and_axes():
+    """The issue's own check: lam against the spectral radius of every loop on the gain table's
+    0.5-deg grid, pointed about 20 random axes (none of DC_AXES) at the extreme biases; and C0,
+    C_n, C_e and D, recomputed independently at anomalies halfway between the analysed ones
+    (where the grid term covers them) about the same axes, below the constants."""
+    from cikan_ros.control import gain_table
+    from cikan_ros.orbit import elements_to_state
+    from cikan_ros.robust import ANALYSIS_STEP_DEG, thrust_matrices, tube_constants
+
+    cfg = load_config(**{**truth_overrides("realistic"), "tsg.robust": True})
+    cc = control_config(cfg)
+    bias, point = 0.02, math.radians(1.0)
+    tc = tube_constants(ORBIT, cc, bias, point)
+    table = gain_table(ORBIT, cc)
+    n_cells = table.shape[0] - 1
+    axes = np.random.default_rng(7).normal(size=(20, 3))
+    maps = np.asarray(thrust_matrices(bias, point, tuple(axes / np.linalg.norm(axes, axis=1)[:, None])))
+
+    def loops(j):
+        nu = 2.0 * math.pi * j / n_cells
+        r = elements_to_state(ORBIT.a, ORBIT.e, ORBIT.i, ORBIT.raan, ORBIT.argp, nu, ORBIT.mu)[:3]
+        a_d, b_d = zoh_discretise(linearisation(r, ORBIT.mu), B_INPUT, cc.period_s)
+        bmk = b_d @ maps @ table[j]
+        return a_d - bmk, b_d, bmk
+
+    radius = max(np.max(np.abs(np.linalg.eigvals(loops(j)[0]))) for j in range(n_cells))
+    assert radius <= tc["lam"]
+    lam = tc["lam"]
+    stride = round(ANALYSIS_STEP_DEG / cc.grid_deg)
+    for j in range(stride // 2, n_cells, 8 * stride):  # halfway between analysed anomalies
+        phis, b_d, bmks = loops(j)
+        for phi, bmk in zip(phis, bmks):
+            p = np.eye(6)
+            dc = np.linalg.solve(np.eye(6) - phi, bmk)
+            for m in range(300):
+                s = lam ** -m
+                assert np.linalg.norm(p[:3, :3], 2) * s <= tc["c0pp"] and np.linalg.norm(p[3:, 3:], 2) * s <= tc["c0vv"]
+                assert np.linalg.norm((p @ bmk)[:3, :3], 2) * s <= tc["cnpp"]
+                assert np.linalg.norm((p @ b_d)[3:], 2) * s <= tc["cve"]
+                p = phi @ p
+                assert np.linalg.norm((p @ dc)[:3, 3:], 2) * s <= tc["dpv"]
