@@ -88,7 +88,7 @@ robustness: $(STAMP)
 # checks"): the Table 2 starts (seeds 1-CORNER_RUNS) at every corner of the realistic truth's
 # declared bounds (48), the conventional TSG and CIKAN under robust Verify, violations judged at
 # the control samples and between them; the table per corner to docs/results/corners.md. 9,600
-# missions at the defaults (about 1.5 h on 2 cores, from 5-start campaigns); resumes. CORNER_ARGS adds options, e.g.
+# missions at the defaults (8.3 min on 2 cores, measured); resumes. CORNER_ARGS adds options, e.g.
 # CORNER_ARGS="--set truth.nav_model=filter" and another CORNER_OUT.
 CORNER_RUNS      ?= 100
 CORNER_GOVERNORS ?= conventional,cikan
