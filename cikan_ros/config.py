@@ -618,6 +618,8 @@ def _coerce(name: str, default: Any, value: Any) -> Any:
         _check(isinstance(value, (int, float)) and not isinstance(value, bool), name, value, "must be a number")
         return float(value)
     if isinstance(default, tuple):
+        if value is None and default == ():
+            return ()  # a ROS params file cannot type an empty list: the node reads it unset
         _check(isinstance(value, (list, tuple)) and all(isinstance(v, (int, float)) and not isinstance(v, bool)
                                                         for v in value), name, value, "must be a list of numbers")
         return tuple(float(v) for v in value)

@@ -66,3 +66,13 @@ def test_partial_file_overrides_defaults(tmp_path):
     f.write_text("/**:\n  ros__parameters:\n    tsg:\n      update_period_s: 120.0\n")
     cfg = load_config(f)
     assert cfg.tsg.update_period_s == 120.0 and cfg.orbit == Config().orbit
+
+
+def test_an_empty_list_read_back_from_a_ros_params_file_is_empty():
+    """A ROS params file cannot type an empty list (rcl reads `[]` as unset, None): a list key
+    whose default is empty reads None as empty; one whose default is not stays an error."""
+    from cikan_ros.config import config_from_flat
+
+    assert config_from_flat({"tsg.ancillary_bands_km": None, "tsg.ancillary_bands_r": None}).tsg.ancillary_bands_km == ()
+    with pytest.raises(ConfigError, match="tsg.ancillary_r_diag"):
+        config_from_flat({"tsg.ancillary_r_diag": None})
