@@ -66,9 +66,10 @@ def test_the_terminal_ball_holds_the_truth_after_the_terminal_sample(name):
     assert c.violations == 0
 
 
-@pytest.mark.xfail(strict=True, reason="issue 24: the tube is not a bound through the saturated approach "
-                                       "(docs/robustness.md, 'Coverage': pos / rho 3.4 at this corner)")
-def test_the_tube_holds_the_truth_before_the_terminal_sample():
+@pytest.mark.xfail(strict=True, reason="the ball tube is not a bound through the saturated approach "
+                                       "(docs/robustness.md, 'Coverage': pos / rho 3.4 at this corner); "
+                                       "the ancillary tube, the default, is (test_ancillary)")
+def test_the_ball_tube_does_not_hold_the_truth_before_the_terminal_sample():
     c = held_shift_coverage(corner("b-.normal-.d+.n+"), 2)
     assert c.pos_ratio <= 1.0 and c.vel_ratio <= 1.0
 
