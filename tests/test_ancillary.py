@@ -263,19 +263,22 @@ def test_the_tube_setting_is_checked():
         Predictor.from_config(two_body)
 
 
-def test_the_ros_graph_flies_the_ancillary_tube_as_the_offline_loop(tmp_path, ros_env) -> None:
+@pytest.mark.parametrize("bands_km", [[], [60.0]], ids=["one gain", "gains by range"])
+def test_the_ros_graph_flies_the_ancillary_tube_as_the_offline_loop(tmp_path, ros_env, bands_km) -> None:
     """`cikan mission --truth realistic --robust --set tsg.tube=ancillary --seed 2` as the ROS graph:
     the controller node builds each shift's plan from the step's measured state with its own chief
     model, anchored where the governor anchors its own (ClosedLoop.observe), and tracks it: the
     same run as the offline loop (tau history, applied thrust, true states), docked, no violation,
-    no plan refused, no guard saturation."""
+    no plan refused, no guard saturation. With a gain band from 60 km (the start is at 99 km) the
+    plans switch gain on the way in, and the graph flies each with the gain its Verify used."""
     from cikan_ros.governor import ConventionalGovernor
     from cikan_ros.mission import run_mission, sample_start
     from cikan_ros.ros.launch import run_ros_mission
 
+    cfg = CFG.replace(**{"tsg.ancillary_bands_km": bands_km, "tsg.ancillary_bands_r": [1e11] * len(bands_km)})
     bag = tmp_path / "bag"
-    metrics = run_ros_mission(CFG, governor="conventional", seed=2, bag=bag)
-    gov = ConventionalGovernor(Predictor.from_config(CFG))
+    metrics = run_ros_mission(cfg, governor="conventional", seed=2, bag=bag)
+    gov = ConventionalGovernor(Predictor.from_config(cfg))
     offline = run_mission(gov, sample_start(gov.predictor, 2), 2)
     msgs = rosbags_messages(bag)
     stamps, _ = states(msgs, "/deputy/odom")
