@@ -94,7 +94,7 @@ class AncillaryLaw:
         cfg = predictor.config
         #: K_a of each gain band (:attr:`Predictor.rbands`; one without bands).
         self.band_gains = [gain_table(predictor.orbit, ancillary_control_config(band))
-                           for _, band in ancillary_band_configs(cfg)[:max(1, len(predictor.rbands))]]
+                           for _, band in ancillary_band_configs(cfg)]
         #: The FTRE law the truth is handed to at a plan's terminal sample (robust Verify's
         #: :data:`~cikan_ros.robust.HANDOFF_FTRE`).
         self.handoff_gains = gain_table(predictor.orbit, handoff_control_config(cfg))

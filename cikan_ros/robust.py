@@ -130,16 +130,22 @@ def frozen_loops(orbit: KeplerOrbit, cfg: ControlConfig) -> tuple[NDArray, NDArr
     return np.asarray(a_ds), np.asarray(b_ds), table[:n_cells]
 
 
+def closed_loops(orbit: KeplerOrbit, cfg: ControlConfig, maps: list[NDArray],
+                 cells: slice = slice(None)) -> tuple[NDArray, NDArray]:
+    """Phi_M = A_d - B_d M K and B_d M K (cells, maps, 6, 6) at the gain table's ``cells``
+    (:func:`frozen_loops`) for each thruster map M of ``maps``."""
+    a_all, b_all, k_all = frozen_loops(orbit, cfg)
+    bmk = np.einsum("cij,mjk,ckl->cmil", b_all[cells], np.asarray(maps), k_all[cells])
+    return a_all[cells, None] - bmk, bmk
+
+
 def loop_radius(orbit: KeplerOrbit, cfg: ControlConfig, bias: float = 0.0,
                 pointing_rad: float = 0.0) -> tuple[float, NDArray, NDArray]:
     """lam before the check: the spectral radius of Phi_M = A_d - B_d M K over every cell of the
     gain table and the extreme maps about DC_AXES, with the grid's term and LAM_AXIS_MARGIN (the
     axes between DC_AXES: over 200 random axes the radius exceeds theirs by at most 1.7e-5);
     also Phi_M and B_d M K (cells, maps, 6, 6) for the DC gains."""
-    a_all, b_all, k_all = frozen_loops(orbit, cfg)
-    dc_maps = np.asarray(thrust_matrices(bias, pointing_rad, DC_AXES))
-    bmk_all = np.einsum("cij,mjk,ckl->cmil", b_all, dc_maps, k_all)
-    phi_all = a_all[:, None] - bmk_all
+    phi_all, bmk_all = closed_loops(orbit, cfg, thrust_matrices(bias, pointing_rad, DC_AXES))
     radius = np.max(np.abs(np.linalg.eigvals(phi_all)), axis=(1, 2))
     return _with_grid_term(radius) * (1.0 + LAM_AXIS_MARGIN), phi_all, bmk_all
 
@@ -153,14 +159,12 @@ def tube_constants(orbit: KeplerOrbit, cfg: ControlConfig, bias: float = 0.0,
     anomaly (frozen-time analysis every ANALYSIS_STEP_DEG with the grid's Lipschitz term,
     :func:`_with_grid_term`; lam, G and H on the gain table's grid and DC_AXES: :func:`loop_radius`).
     Raises UnstableLoopError when some M makes the loop unstable."""
-    table = gain_table(orbit, cfg)
-    n_cells = table.shape[0] - 1
+    _, b_all, k_all = frozen_loops(orbit, cfg)
     stride = max(1, round(ANALYSIS_STEP_DEG / cfg.grid_deg))
     keys = ("lam", "kp", "kv") + tuple(f"{c}{row}{col}" for c in ("c0", "g", "d", "h", "e", "cn")
                                         for row in "pv" for col in "pv") + ("cpe", "cve")
     out = {k: 0.0 for k in keys}
     blocks = (("p", slice(0, 3)), ("v", slice(3, 6)))
-    a_all, b_all, _ = frozen_loops(orbit, cfg)
     lam, phi_all, bmk_all = loop_radius(orbit, cfg, bias, pointing_rad)
     if not lam < 1.0 - 1e-6:
         raise UnstableLoopError(
@@ -169,10 +173,8 @@ def tube_constants(orbit: KeplerOrbit, cfg: ControlConfig, bias: float = 0.0,
             f"radius {lam:.4f} >= 1 over the orbit): no error tube exists; a larger "
             "control.robust_r_diag widens the loop's gain margin (cikan tube prints it)")
     out["lam"] = lam
-
-    def loop(j: int, maps: list[NDArray]) -> tuple[NDArray, NDArray, NDArray]:
-        bmk = np.einsum("ij,mjk,kl->mil", b_all[j], np.asarray(maps), table[j])
-        return a_all[j] - bmk, b_all[j], bmk
+    out["kp"] = float(np.max(norms(k_all[:, :, :3])))
+    out["kv"] = float(np.max(norms(k_all[:, :, 3:])))
 
     # The DC gains G = (I - Phi)^-1 B M K and H (blocks of I - G): no powers, so on every cell of
     # the gain table and every axis of DC_AXES, no grid term needed.
@@ -184,20 +186,15 @@ def tube_constants(orbit: KeplerOrbit, cfg: ControlConfig, bias: float = 0.0,
             out[f"h{row}{col}"] = float(np.max(norms(seen_all[..., rs, cs])))
 
     # The constants that take powers, per analysed anomaly (worst over the maps there), then the
-    # sup over the orbit with the grid's term.
+    # sup over the orbit with the grid's term: every analysed loop at once, (S, 6, 6) with
+    # S = anomalies x maps, powered in step.
     maps = thrust_matrices(bias, pointing_rad)
-    nominal = [bool(np.array_equal(m, np.eye(3))) for m in maps]
-    systems = []
-    for j in range(0, n_cells, stride):
-        systems.append(loop(j, maps))
-    out["kp"] = float(np.max(norms(table[:n_cells, :, :3])))
-    out["kv"] = float(np.max(norms(table[:n_cells, :, 3:])))
+    cells = slice(0, len(b_all), stride)
+    phi, bmk = (m.reshape(-1, 6, 6) for m in closed_loops(orbit, cfg, maps, cells))
+    n_anomalies = len(phi) // len(maps)
+    b_d = np.repeat(b_all[cells], len(maps), axis=0)
+    nominal = np.tile([bool(np.array_equal(m, np.eye(3))) for m in maps], n_anomalies)
     n_powers = min(MAX_POWERS, max(N_POWERS, math.ceil(POWER_SPAN / (1.0 - lam))))
-    # Every analysed loop at once: (S, 6, 6) with S = anomalies x maps, powered in step.
-    phi = np.concatenate([sy[0] for sy in systems])
-    bmk = np.concatenate([sy[2] for sy in systems])
-    b_d = np.concatenate([np.broadcast_to(sy[1], (len(maps), 6, 3)) for sy in systems])
-    nominal = np.tile(nominal, len(systems))
     # DC response to a constant navigation error: sum_l Phi^l B M K = (I - Phi)^-1 B M K, and
     # what is left of it after m steps: D_m = sum_{l > m} Phi^l B M K = Phi^(m+1) (DC).
     dc = np.linalg.solve(np.eye(6) - phi, bmk)
@@ -220,7 +217,7 @@ def tube_constants(orbit: KeplerOrbit, cfg: ControlConfig, bias: float = 0.0,
             np.maximum(best[f"c{row}e"], norms(pb[:, rs]) * s, out=best[f"c{row}e"])
         power = nxt
     # per analysed anomaly, the worst over its maps
-    per_anomaly = {k: v.reshape(len(systems), len(maps)).max(axis=1) for k, v in best.items()}
+    per_anomaly = {k: v.reshape(n_anomalies, len(maps)).max(axis=1) for k, v in best.items()}
     for k, values in per_anomaly.items():
         out[k] = _with_grid_term(values)
     return out

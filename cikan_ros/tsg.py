@@ -550,7 +550,7 @@ class Predictor:
         return self.rbands[band][1] if self.rbands else self.rparams
 
     def _rp(self, x: NDArray, t: float) -> NDArray:
-        return self.rbands[self.band(x, t)][1] if self.rbands else self.rparams
+        return self.band_params(self.band(x, t))
 
     def cache(self, t: float) -> ChiefCache:
         """Chief states for the Verify/bisect calls at update time t: a view into the process's
