@@ -38,7 +38,7 @@ def constraint_params(cfg: ConstraintConfig, u_max: float, side: Side) -> NDArra
                      cfg.gamma1_km, cfg.gamma2_per_s, cfg.gamma3_kmps, u_max, port])
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, error_model="numpy", inline="always")
 def los_terms_kernel(x_d: NDArray, x_c: NDArray, port: float) -> tuple[float, float, float]:
     """(port v_c . p_rel, |p_rel|, |v_c|) of deputy x_d and chief x_c (6,), port sign ``port``
     (+1: the port faces -v_c, -1: +v_c): what h1 is made of."""
@@ -53,7 +53,7 @@ def los_terms_kernel(x_d: NDArray, x_c: NDArray, port: float) -> tuple[float, fl
     return port * dot, math.sqrt(p2), math.sqrt(vc2)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def h1_line_of_sight_kernel(x_d: NDArray, x_c: NDArray, cp: NDArray) -> float:
     """h1 (km^2/s) of deputy x_d and chief x_c (6,); NaN within the apex radius."""
     dot, pn, vn = los_terms_kernel(x_d, x_c, cp[C_PORT])
@@ -62,7 +62,7 @@ def h1_line_of_sight_kernel(x_d: NDArray, x_c: NDArray, cp: NDArray) -> float:
     return dot + cp[C_COS_ALPHA] * vn * pn
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, error_model="numpy", inline="always")
 def rel_norms_kernel(x_d: NDArray, x_c: NDArray) -> tuple[float, float]:
     """(|p_rel|, |v_rel|) of deputy x_d and chief x_c (6,): what h3 is made of."""
     p2 = 0.0
@@ -75,7 +75,7 @@ def rel_norms_kernel(x_d: NDArray, x_c: NDArray) -> tuple[float, float]:
     return math.sqrt(p2), math.sqrt(v2)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def h3_approach_velocity_kernel(x_d: NDArray, x_c: NDArray, cp: NDArray) -> float:
     """h3 (km/s) of deputy x_d and chief x_c (6,); NaN when |p_rel| > gamma1."""
     pn, vn = rel_norms_kernel(x_d, x_c)
@@ -84,13 +84,13 @@ def h3_approach_velocity_kernel(x_d: NDArray, x_c: NDArray, cp: NDArray) -> floa
     return vn - cp[C_GAMMA2] * pn - cp[C_GAMMA3]
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def h2_thrust_kernel(u: NDArray, cp: NDArray) -> float:
     """h2 = |u| - u_max (km/s^2)."""
     return math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]) - cp[C_UMAX]
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def margins_kernel(x_d: NDArray, x_c: NDArray, u: NDArray, cp: NDArray, out: NDArray) -> None:
     """Row-wise (N, 6), (N, 6), (N, 3) -> out (N, 4): h1, h1 normalised, h2, h3."""
     for k in range(x_d.shape[0]):
@@ -104,7 +104,7 @@ def margins_kernel(x_d: NDArray, x_c: NDArray, u: NDArray, cp: NDArray, out: NDA
         out[k, 3] = h3_approach_velocity_kernel(x_d[k], x_c[k], cp)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def step_margins_kernel(x_d: NDArray, x_c: NDArray, u: NDArray, path: NDArray, chief_path: NDArray,
                         cp: NDArray, h1_tol: float, h3_tol: float, out: NDArray) -> int:
     """One control step of the truth in one call: ``out`` (4,) the margins of (x_d, x_c, u) as

@@ -107,21 +107,29 @@ def gain_table(orbit: KeplerOrbit, cfg: ControlConfig) -> NDArray:
     return table
 
 
-@nb.njit(cache=True)
-def interpolate_gain_kernel(table: NDArray, nu: float, out: NDArray) -> None:
-    """Periodic linear interpolation of the gain table at nu (rad) into ``out`` (3, 6)."""
+@nb.njit(cache=True, error_model="numpy", inline="always")
+def gain_cell_kernel(table: NDArray, nu: float) -> tuple[int, float]:
+    """The gain table's cell j and weight w at nu (rad): K(nu) = (1 - w) K_j + w K_{j+1}."""
     n_cells = table.shape[0] - 1
-    s = (nu / (2.0 * math.pi)) % 1.0 * n_cells
+    q = nu / (2.0 * math.pi)
+    # q % 1.0 is q itself on (0, 1) (exactly): the modulo's library call only outside it
+    s = (q if 0.0 < q < 1.0 else q % 1.0) * n_cells
     j = int(s)
     if j >= n_cells:  # s == n_cells only through rounding
         j = n_cells - 1
-    w = s - j
+    return j, s - j
+
+
+@nb.njit(cache=True, error_model="numpy")
+def interpolate_gain_kernel(table: NDArray, nu: float, out: NDArray) -> None:
+    """Periodic linear interpolation of the gain table at nu (rad) into ``out`` (3, 6)."""
+    j, w = gain_cell_kernel(table, nu)
     for r in range(3):
         for c in range(6):
             out[r, c] = (1.0 - w) * table[j, r, c] + w * table[j + 1, r, c]
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def saturate_kernel(u: NDArray, u_max: float) -> float:
     """In place: u <- min(|u|, u_max) u/|u|, keeping the direction (SPEC §3); returns |u| before."""
     n = math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
@@ -132,16 +140,28 @@ def saturate_kernel(u: NDArray, u_max: float) -> float:
     return n
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def ftre_control_kernel(table: NDArray, nu_v: float, x_d: NDArray, x_v: NDArray, u_max: float,
-                        k_buf: NDArray, out: NDArray) -> float:
-    """out = sat(-K(nu_v) (x_d - x_v)) in km/s^2; returns |K(nu_v) (x_d - x_v)| (unsaturated);
-    ``k_buf`` (3, 6) is scratch space."""
-    interpolate_gain_kernel(table, nu_v, k_buf)
+                        out: NDArray) -> float:
+    """out = sat(-K(nu_v) (x_d - x_v)) in km/s^2; returns |K(nu_v) (x_d - x_v)| (unsaturated).
+
+    K(nu_v) is interpolated element by element inside the product (the same operations, so the
+    same bits, as :func:`interpolate_gain_kernel` then the product; no (3, 6) scratch array:
+    the step of every Verify sample, 65 -> 23 ns measured)."""
+    j, w = gain_cell_kernel(table, nu_v)
+    w1 = 1.0 - w
+    a = table[j]
+    b = table[j + 1]
+    d0, d1, d2 = x_d[0] - x_v[0], x_d[1] - x_v[1], x_d[2] - x_v[2]
+    d3, d4, d5 = x_d[3] - x_v[3], x_d[4] - x_v[4], x_d[5] - x_v[5]
     for r in range(3):
         acc = 0.0
-        for c in range(6):
-            acc -= k_buf[r, c] * (x_d[c] - x_v[c])
+        acc -= (w1 * a[r, 0] + w * b[r, 0]) * d0
+        acc -= (w1 * a[r, 1] + w * b[r, 1]) * d1
+        acc -= (w1 * a[r, 2] + w * b[r, 2]) * d2
+        acc -= (w1 * a[r, 3] + w * b[r, 3]) * d3
+        acc -= (w1 * a[r, 4] + w * b[r, 4]) * d4
+        acc -= (w1 * a[r, 5] + w * b[r, 5]) * d5
         out[r] = acc
     return saturate_kernel(out, u_max)
 
@@ -164,5 +184,5 @@ def ftre_control(table: NDArray, nu_v: float, x_d: ArrayLike, x_v: ArrayLike, u_
     """Saturated FTRE acceleration (3,) km/s^2 toward the virtual target x_v (true anomaly nu_v)."""
     out = np.empty(3)
     ftre_control_kernel(table, float(nu_v), np.asarray(x_d, dtype=float), np.asarray(x_v, dtype=float),
-                        float(u_max), np.empty((3, 6)), out)
+                        float(u_max), out)
     return out

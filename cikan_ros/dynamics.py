@@ -68,7 +68,7 @@ def linearisation(r: ArrayLike, mu: float) -> NDArray:
     return a
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, error_model="numpy", inline="always")
 def _gravity(x: float, y: float, z: float, mu: float, j2r2: float) -> tuple[float, float, float]:
     r2 = x * x + y * y + z * z
     k = -mu / (r2 * math.sqrt(r2))
@@ -80,7 +80,7 @@ def _gravity(x: float, y: float, z: float, mu: float, j2r2: float) -> tuple[floa
     return kxy * x, kxy * y, k * (1.0 + f * (3.0 - 5.0 * z2)) * z
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def rk4_kernel(x: NDArray, u: NDArray, dt: float, substeps: int, mu: float, out: NDArray,
                j2r2: float = 0.0) -> None:
     """Classical RK4 over ``dt`` in ``substeps`` equal steps with u held constant; writes ``out``.
@@ -122,7 +122,7 @@ def rk4_kernel(x: NDArray, u: NDArray, dt: float, substeps: int, mu: float, out:
     out[0], out[1], out[2], out[3], out[4], out[5] = px, py, pz, vx, vy, vz
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def rk4_batch_kernel(x: NDArray, u: NDArray, dt: float, substeps: int, mu: float, out: NDArray,
                      j2r2: float = 0.0) -> None:
     """:func:`rk4_kernel` for a batch: x (B, 6), u (B, 3) -> out (B, 6)."""
@@ -130,7 +130,7 @@ def rk4_batch_kernel(x: NDArray, u: NDArray, dt: float, substeps: int, mu: float
         rk4_kernel(x[b], u[b], dt, substeps, mu, out[b], j2r2)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def rk4_path_kernel(x: NDArray, u: NDArray, dt: float, substeps: int, mu: float, out: NDArray,
                     j2r2: float = 0.0) -> None:
     """:func:`rk4_kernel` keeping every substep: out (substeps + 1, 6) holds x and the states

@@ -27,7 +27,7 @@ P_S1E, P_SQMUA = 11, 12  # sqrt(1 - e^2), sqrt(mu a): precomputed for the kernel
 N_PARAMS = 13
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def _kepler_newton(m: float, e: float, big_e: float) -> float:
     """Newton's method on E - e sin E = m from the guess ``big_e``.
 
@@ -43,7 +43,7 @@ def _kepler_newton(m: float, e: float, big_e: float) -> float:
     return big_e
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def eccentric_anomaly_kernel(mean_anomaly: float, e: float) -> float:
     """Solve Kepler's equation M = E - e sin E by Newton's method (elliptic, 0 <= e < 1).
 
@@ -54,14 +54,18 @@ def eccentric_anomaly_kernel(mean_anomaly: float, e: float) -> float:
     return _kepler_newton(m, e, m + 0.85 * e * (1.0 if math.sin(m) >= 0.0 else -1.0))
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def state_from_anomaly_kernel(orb: NDArray, big_e: float, out: NDArray, want_nu: bool = True) -> float:
     """Write the state [r; v] at eccentric anomaly E into ``out[0:6]``; return nu in [0, 2 pi)
     (or 0 without computing it when ``want_nu`` is False)."""
+    return _perifocal_state(orb, math.cos(big_e), math.sin(big_e), out, want_nu)
+
+
+@nb.njit(cache=True, error_model="numpy", inline="always")
+def _perifocal_state(orb: NDArray, ce: float, se: float, out: NDArray, want_nu: bool) -> float:
+    """:func:`state_from_anomaly_kernel` from cos E and sin E."""
     a = orb[P_A]
     e = orb[P_E]
-    ce = math.cos(big_e)
-    se = math.sin(big_e)
     s1e = orb[P_S1E]
     x = a * (ce - e)          # perifocal position
     y = a * s1e * se
@@ -82,7 +86,7 @@ def state_from_anomaly_kernel(orb: NDArray, big_e: float, out: NDArray, want_nu:
     return nu
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def state_kernel(orb: NDArray, t: float, out: NDArray) -> float:
     """Write the state [r; v] at time t (s since epoch) into ``out[0:6]``; return the true anomaly.
 
@@ -91,28 +95,30 @@ def state_kernel(orb: NDArray, t: float, out: NDArray) -> float:
     return state_from_anomaly_kernel(orb, eccentric_anomaly_kernel(orb[P_M0] + orb[P_N] * t, orb[P_E]), out)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def state_warm_kernel(orb: NDArray, t: float, e_guess: float, out: NDArray,
-                      want_nu: bool = True) -> tuple[float, float]:
+                      want_nu: bool = True) -> tuple[float, float, float]:
     """:func:`state_kernel` with Newton started from ``e_guess`` (e.g. the previous sample's E
-    advanced by n dt / (1 - e cos E)); returns (nu, E). Sequential predictions use it: 1-2 Newton
-    iterations instead of 4-6."""
+    advanced by n dt / (1 - e cos E)); returns (nu, E, cos E). Sequential predictions use it: 1-2
+    Newton iterations instead of 4-6, and the next sample's guess reuses cos E (one cosine less
+    a sample, the same bits)."""
     e = orb[P_E]
     m = (orb[P_M0] + orb[P_N] * t + math.pi) % (2.0 * math.pi) - math.pi
     two_pi = 2.0 * math.pi
     guess = e_guess - two_pi * math.floor((e_guess - m) / two_pi + 0.5)  # same revolution as m
     big_e = _kepler_newton(m, e, guess)
-    return state_from_anomaly_kernel(orb, big_e, out, want_nu), big_e
+    ce = math.cos(big_e)
+    return _perifocal_state(orb, ce, math.sin(big_e), out, want_nu), big_e, ce
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def states_kernel(orb: NDArray, times: NDArray, out: NDArray, nus: NDArray) -> None:
     """Vectorised :func:`state_kernel`: ``out[k] = x(times[k])``, ``nus[k]`` its true anomaly."""
     for k in range(times.shape[0]):
         nus[k] = state_kernel(orb, times[k], out[k])
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def osculating_params_kernel(x: NDArray, mu: float, out: NDArray) -> None:
     """The packed orbit (layout ``P_*``) of the osculating ellipse of state x[0:6] (km, km/s),
     with its mean anomaly at the state's own time (t = 0). A circular orbit (e < 1e-12) takes

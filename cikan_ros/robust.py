@@ -321,7 +321,7 @@ def robust_params(cfg: Config, orbit: KeplerOrbit) -> NDArray:
 
 # -- kernels: robust Verify's checks and tube, called along the rollout (cikan_ros.tsg) ----------
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def robust_h1_ok(x: NDArray, xc: NDArray, cp: NDArray, sin_a: float, rho: float) -> bool:
     """Every position within rho (km) of x lies in the LoS cone or inside the apex radius:
     the distance of p = x - x_c to the cone's surface, |p| sin(alpha - theta), is >= rho
@@ -337,7 +337,7 @@ def robust_h1_ok(x: NDArray, xc: NDArray, cp: NDArray, sin_a: float, rho: float)
     return pn * (sin_a * c - cp[C_COS_ALPHA] * s) >= rho
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def robust_h3_ok(x: NDArray, xc: NDArray, cp: NDArray, rho: float, sig: float) -> bool:
     """h3 holds for every state within rho (km) and sigma (km/s) of x (h3 is active wherever
     |p| <= gamma1 may hold: |p| - rho <= gamma1)."""
@@ -348,7 +348,7 @@ def robust_h3_ok(x: NDArray, xc: NDArray, cp: NDArray, rho: float, sig: float) -
     return vn + sig - cp[C_GAMMA2] * lo - cp[C_GAMMA3] <= 0.0
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def nav_terms(rp: NDArray, rng: float, vrel: float, ts: float) -> tuple[float, float, float, float]:
     """Navigation error bounds b_p (km), b_v (km/s) at range rng (km) and the bounds of their
     change over one sample, Delta_p, Delta_v (the error's rate bound plus the change of the
@@ -359,14 +359,14 @@ def nav_terms(rp: NDArray, rng: float, vrel: float, ts: float) -> tuple[float, f
     return bp, bv, k * bp + rp[R_NPG] * vrel * ts, k * bv + rp[R_NVG] * vrel * ts
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def loop_takes_over(rp: NDArray, big_r: float, big_s: float) -> tuple[float, float]:
     """The bounds (km, km/s) of a transient R, S held through a saturated phase, once the linear
     loop takes it over: C0 (R, S), the loop's gain from an initial error (:func:`tube_constants`)."""
     return (rp[R_C0PP] * big_r + rp[R_C0PV] * big_s, rp[R_C0VP] * big_r + rp[R_C0VV] * big_s)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def tube_step_jump(rp: NDArray, u_max: float, ts: float, rng: float, vrel: float, rho: float,
                    sig: float, big_r: float, big_s: float, linear: bool, a_n: float, un: float,
                    grad: float) -> tuple[float, float, float, float, bool]:
@@ -395,7 +395,7 @@ def tube_step_jump(rp: NDArray, u_max: float, ts: float, rng: float, vrel: float
     return big_r, big_s, big_r, big_s, False
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def tube_step(rp: NDArray, u_max: float, ts: float, rng: float, vrel: float, rho: float,
               sig: float, big_r: float, big_s: float, linear: bool, a_n: float, un: float,
               grad: float) -> tuple[float, float, float, float, bool]:
@@ -457,7 +457,7 @@ def tube_step(rp: NDArray, u_max: float, ts: float, rng: float, vrel: float, rho
     return big_r + offset_p, big_s + offset_v, big_r, big_s, False
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def robust_terminal_ok(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, dp: float, dv: float,
                        big_r: float, big_s: float, linear: bool, ts: float) -> tuple[bool, float, float]:
     """The robust terminal test, once the prediction is in the nominal terminal set (dp, dv
@@ -507,7 +507,7 @@ def robust_terminal_ok(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, dp: f
           and robust_h3_ok(xv, xc, cp, big_p + rho, big_v + sig))
     return ok, big_p + rho, big_v + sig
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def tube_start(rp: NDArray, rng: float) -> tuple[float, float, float, float]:
     """The tube at sample 0, the measured state at range rng (km): off the truth by the
     navigation error delta (|delta_p| <= b_p, |delta_v| <= b_v), whose transient is
@@ -521,7 +521,7 @@ def tube_start(rp: NDArray, rng: float) -> tuple[float, float, float, float]:
     return rho, sig, big_r, big_s
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def tube_ok(x: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, rho: float, sig: float) -> bool:
     """h1 and h3 hold on the whole tube around the predicted deputy x (chief xc, both (6,)):
     every state within rho (km) and sigma (km/s) of x."""
@@ -530,7 +530,7 @@ def tube_ok(x: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, rho: float, sig: 
     return robust_h3_ok(x, xc, cp, rho, sig)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def tube_next(rp: NDArray, u_max: float, ts: float, x: NDArray, xc: NDArray, u: NDArray, a_n: float,
               rng: float, rho: float, sig: float, big_r: float, big_s: float, linear: bool
               ) -> tuple[float, float, float, float, bool]:
@@ -572,7 +572,7 @@ def gain_margin(orbit: KeplerOrbit, cfg: ControlConfig, tol: float = 1e-4) -> fl
 # times the error at sample 0.
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def ancillary_start(rp: NDArray, rng: float) -> tuple[float, float, float, float, float, float]:
     """The ancillary tube at sample 0, the measured state at range rng (km): e_0 = -delta_0, so
     (rho, sigma) = (b_p, b_v) and the two recursions' C-weighted states (R1, S1, R2, S2) are C0
@@ -590,7 +590,7 @@ def ancillary_start(rp: NDArray, rng: float) -> tuple[float, float, float, float
     return bp, bv, r1, s1, r2, s2
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def ancillary_step(rp: NDArray, u_max: float, ts: float, x: NDArray, xc: NDArray, u: NDArray,
                    rng: float, rho: float, sig: float, r1: float, s1: float, r2: float, s2: float
                    ) -> tuple[float, float, float, float, float, float, bool]:
@@ -618,7 +618,7 @@ def ancillary_step(rp: NDArray, u_max: float, ts: float, x: NDArray, xc: NDArray
     return rho, sig, r1, s1, r2, s2, True
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def ancillary_command_bound(rp: NDArray, ts: float, x: NDArray, xc: NDArray, u: NDArray, rng: float,
                             rho: float, sig: float, r1: float, s1: float) -> float:
     """The bound (km/s^2) of the truth's command u_p - K_a (e + delta) at sample j of the ancillary
@@ -629,7 +629,7 @@ def ancillary_command_bound(rp: NDArray, ts: float, x: NDArray, xc: NDArray, u: 
                             rho, sig, r1, s1)
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, error_model="numpy", inline="always")
 def command_bound_of(rp: NDArray, un: float, bp: float, bv: float, dp: float, dv: float, rho: float,
                      sig: float, r1: float, s1: float) -> float:
     """:func:`ancillary_command_bound` from the command's norm un and the navigation terms
@@ -648,7 +648,7 @@ def command_bound_of(rp: NDArray, un: float, bp: float, bv: float, dp: float, dv
 HANDOFF_FTRE, HANDOFF_TRACK = 1.0, 2.0
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def ancillary_terminal_ok(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, dp: float, dv: float,
                           rho: float, sig: float, ts: float) -> tuple[bool, float, float, float]:
     """The robust terminal test of the ancillary tube: (ok, ball radii, handoff). From the
@@ -669,7 +669,7 @@ def ancillary_terminal_ok(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, dp
     return ok, ball_p, ball_v, HANDOFF_TRACK
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def ancillary_ftre_handoff(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, dp: float, dv: float,
                            rho: float, sig: float, ts: float) -> tuple[bool, float, float]:
     """The handoff to the FTRE law toward x_v: the truth's error from the prediction, within
@@ -693,7 +693,7 @@ def ancillary_ftre_handoff(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, d
     return True, ball_p, ball_v
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def ancillary_track_handoff(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, dp: float, dv: float,
                             rho: float, sig: float, ts: float) -> tuple[bool, float, float]:
     """The handoff to the tracking law holding the virtual target, u = -K_a (x_hat - x_v): x_v
@@ -751,7 +751,7 @@ def ancillary_track_handoff(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, 
 # interval that leaves one region for the other must stay in one of them by the motion bound from
 # one of its ends (|p(s) - p_j| <= |v_j| s + acc s^2 / 2).
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def frame_rates(xc: NDArray, rp: NDArray, ts: float) -> tuple[float, float]:
     """Bounds of the turn rate |w| (rad/s) of the chief's velocity direction (the cone's axis)
     and of its derivative |w'| (rad/s^2) over one sample from the chief state xc (6,):
@@ -767,7 +767,7 @@ def frame_rates(xc: NDArray, rp: NDArray, ts: float) -> tuple[float, float]:
     return w, rp[R_GRAD] / r_low ** 3 + 2.0 * w * w
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def sample_excess(x: NDArray, xc: NDArray, cp: NDArray, sin_a: float, rho: float) -> tuple[float, float]:
     """(cone excess, apex excess), km, of the tube of radius rho around the deputy x (chief xc):
     the depth of its shallowest position in the LoS cone, |p| sin(alpha - theta) - rho (negative:
@@ -780,7 +780,7 @@ def sample_excess(x: NDArray, xc: NDArray, cp: NDArray, sin_a: float, rho: float
     return pn * (sin_a * c - cp[C_COS_ALPHA] * s) - rho, cp[C_APEX] - pn - rho
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def interval_ok(cp: NDArray, ts: float, cone0: float, apex0: float, r0: float, v0: float,
                 cone1: float, apex1: float, r1: float, v1: float, rho0: float, rho1: float,
                 acc: float, w: float, wdot: float) -> bool:
@@ -804,7 +804,7 @@ def interval_ok(cp: NDArray, ts: float, cone0: float, apex0: float, r0: float, v
     return rmin > cp[C_GAMMA1] or vmax <= cp[C_GAMMA2] * rmin + cp[C_GAMMA3]
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def truth_acceleration(rp: NDArray, u_bound: float, r_max: float, r_chief: float) -> float:
     """A bound (km/s^2) of the truth's relative acceleration for a command of norm <= u_bound:
     the thruster map's gain (<= 1 + eps_u), the disturbance and the gravity difference over a
@@ -813,7 +813,7 @@ def truth_acceleration(rp: NDArray, u_bound: float, r_max: float, r_chief: float
             + rp[R_GRAD] / max(r_chief - r_max, 6000.0) ** 3 * r_max)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def ball_between_ok(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, ball_p: float, ball_v: float,
                     u_bound: float, ts: float) -> bool:
     """After the terminal sample: the truth, within (ball_p, ball_v) of the virtual target x_v at
@@ -834,7 +834,7 @@ def ball_between_ok(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, ball_p: 
 
 # -- the terminal ball over time (docking: docs/robustness.md, "Docking, certified") ------------
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def terminal_ball_after(xv: NDArray, xc: NDArray, rp: NDArray, dp: float, dv: float, rho: float,
                         sig: float, ball_p: float, ball_v: float, handoff: float, ts: float, n: int,
                         out: NDArray) -> None:

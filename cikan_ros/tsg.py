@@ -23,6 +23,11 @@ distance of the predicted position to the cone's surface, |p| sin(alpha - theta)
 With every bound 0 the tubes are 0 and robust Verify answers as nominal Verify, but for that
 terminal ball: the transient it lets go must keep h1 and h3 too.
 
+The kernels of the prediction (here and in orbit, dynamics, control, constraints, robust)
+compile with numba's ``error_model="numpy"``: a float division by zero gives inf or NaN, which
+no check accepts (a NaN state never reaches the terminal set), instead of a branch to raise
+ZeroDivisionError before every division; the same bits, a Verify 5-6 % faster (measured).
+
 The chief comes from its measured state (:class:`ChiefAnchor`): predictions start from the chief
 state received at t_k, propagated as a Kepler orbit, re-anchored whenever the measurement departs
 from the model by more than ``tsg.chief_anchor_tolerance_km``.
@@ -68,7 +73,7 @@ J2_ROW_ORBIT = slice(7, 7 + N_PARAMS)
 J2_ROW_WIDTH = 7 + N_PARAMS
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def chief_row_kernel(orb: NDArray, t: float, row: NDArray) -> None:
     """Chief state x_c(t) and its eccentric anomaly into ``row`` (7,), solved from scratch (no warm
     start), so a row's bits do not depend on which update computed it first."""
@@ -76,7 +81,7 @@ def chief_row_kernel(orb: NDArray, t: float, row: NDArray) -> None:
     state_from_anomaly_kernel(orb, row[6], row, False)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def chief_row_j2_kernel(chief: NDArray, j: int, ts: float, sub: int, mu: float, j2r2: float) -> None:
     """J2 prediction model: chief row j (>= 1) integrated from row j - 1 (RK4 with J2, no
     thrust), with its osculating orbit packed beside it. Row 0 is the anchored chief state."""
@@ -90,7 +95,7 @@ def chief_row_j2_kernel(chief: NDArray, j: int, ts: float, sub: int, mu: float, 
     row[6] = 0.0
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def verify_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: NDArray,
                   x0: NDArray, t_k: float, tau: float, chief: NDArray, chief_t0: float) -> bool:
     """Verify(x0, t_k, tau) with packed orbit/gains/constraint/prediction/robustness parameters;
@@ -106,7 +111,7 @@ def verify_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: ND
     return True
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: NDArray,
                    x0: NDArray, t_k: float, tau: float, chief: NDArray, chief_t0: float,
                    trace: NDArray) -> bool:
@@ -150,8 +155,7 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
     x = x0.copy()
     xv = np.empty(6)
     u = np.empty(3)
-    kb = np.empty((3, 6))
-    ev = 0.0
+    ev = cev = 0.0  # the virtual target's eccentric anomaly and its cosine
     rho = sig = big_r = big_s = 0.0  # tube radii and their state parts
     linear = False
     for j in range(n):
@@ -192,15 +196,17 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
             if j == 0:
                 ev = eccentric_anomaly_kernel(xc[7 + P_M0] + xc[7 + P_N] * tau, xc[7 + P_E])
                 nu_v = state_from_anomaly_kernel(xc[7:7 + N_PARAMS], ev, xv)
+                cev = math.cos(ev)
             else:  # Newton from the previous sample's anomaly, advanced by one sample
                 e = xc[7 + P_E]
-                nu_v, ev = state_warm_kernel(xc[7:7 + N_PARAMS], tau,
-                                             ev + xc[7 + P_N] * ts / (1.0 - e * math.cos(ev)), xv)
+                nu_v, ev, cev = state_warm_kernel(xc[7:7 + N_PARAMS], tau,
+                                                  ev + xc[7 + P_N] * ts / (1.0 - e * cev), xv)
         elif j == 0:
             ev = eccentric_anomaly_kernel(orb[P_M0] + orb[P_N] * (t + tau), e)
             nu_v = state_from_anomaly_kernel(orb, ev, xv)
+            cev = math.cos(ev)
         else:
-            nu_v, ev = state_warm_kernel(orb, t + tau, ev + dm / (1.0 - e * math.cos(ev)), xv)
+            nu_v, ev, cev = state_warm_kernel(orb, t + tau, ev + dm / (1.0 - e * cev), xv)
         dp2 = 0.0
         dv2 = 0.0
         for i in range(3):
@@ -227,7 +233,7 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
                     trace[j, 20] = rho
                     trace[j, 21] = sig
                 return True
-        a_n = ftre_control_kernel(table, nu_v, x, xv, u_pred, kb, u)  # |u| before saturation
+        a_n = ftre_control_kernel(table, nu_v, x, xv, u_pred, u)  # |u| before saturation
         # h2 holds by saturation up to rounding; checked so a changed control law cannot skip it.
         if h2_thrust_kernel(u, cp) > 1e-12 * u_max:
             return False
@@ -300,7 +306,7 @@ class ChiefTable:
         return self.rows[lo: lo + self.n]
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def bisect_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: NDArray, x0: NDArray, t_k: float,
                   lo_ns: int, hi_ns: int, tol_ns: int, chief: NDArray, chief_t0: float,
                   max_calls: int) -> tuple[int, int, int]:
@@ -329,7 +335,7 @@ def bisect_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: ND
     return lo_ns, hi_ns, calls
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def first_feasible_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: NDArray, x0: NDArray,
                           t_k: float, cands_ns: NDArray, lo_ns: int, budget: int, tol_ns: int,
                           chief: NDArray, chief_t0: float) -> tuple[int, int, int]:
@@ -350,7 +356,7 @@ def first_feasible_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray
     return tau, -1, n + calls
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def conventional_update_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: NDArray, x0: NDArray,
                                t_k: float, tau_prev_ns: int, tol_ns: int, chief: NDArray,
                                chief_t0: float) -> tuple[int, int]:
@@ -362,7 +368,7 @@ def conventional_update_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: ND
     return tau, calls + 1
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def initial_search_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: NDArray, x0: NDArray,
                           t0: float, window_ns: int, grid_ns: int, tol_ns: int, chief: NDArray,
                           chief_t0: float, side: int) -> tuple[int, int, bool]:
@@ -683,7 +689,7 @@ class Predictor:
         return ns_to_seconds(tau), int(calls)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def anchor_offset_kernel(orb: NDArray, t: float, x_c: NDArray, model: NDArray) -> tuple[float, float]:
     """Largest position (km) and velocity (km/s) component of x_c - x_model(t), the model chief
     of ``orb`` at t written into ``model`` (6,); NaN when x_c is not finite. One compiled call:

@@ -12,8 +12,8 @@ from scipy.integrate import solve_ivp
 
 from cikan_ros.dynamics import two_body_rhs
 from cikan_ros.errors import StateError
-from cikan_ros.orbit import (KeplerOrbit, eccentric_anomaly_kernel, elements_to_state,
-                             state_to_elements, vnb_frame)
+from cikan_ros.orbit import (P_E, P_M0, P_N, KeplerOrbit, eccentric_anomaly_kernel, elements_to_state, state_from_anomaly_kernel,
+                             state_to_elements, state_warm_kernel, vnb_frame)
 
 MU = 398600.4418
 
@@ -99,6 +99,23 @@ def test_kepler_equation_residual(m, e):
     big_e = eccentric_anomaly_kernel(m, e)
     resid = (big_e - e * math.sin(big_e) - m + math.pi) % (2 * math.pi) - math.pi
     assert abs(resid) < 1e-12
+
+
+@settings(max_examples=200, deadline=None)
+@given(t=st.floats(-1e5, 1e5), dt=st.sampled_from([1.0, 10.0, 60.0]))
+def test_warm_started_state_is_the_cold_one_and_returns_its_cosine(predictor, t, dt):
+    """state_warm_kernel from the previous sample's anomaly (the rollout's virtual target) gives
+    the state of Kepler's equation solved at t to 1e-12 relative, and returns E with cos E to the
+    bit (what the next sample's guess reuses)."""
+    orb = predictor.orbit.params
+    prev = eccentric_anomaly_kernel(orb[P_M0] + orb[P_N] * (t - dt), orb[P_E])
+    guess = prev + orb[P_N] * dt / (1.0 - orb[P_E] * math.cos(prev))
+    warm, cold = np.empty(6), np.empty(6)
+    nu, big_e, cos_e = state_warm_kernel(orb, t, guess, warm)
+    assert cos_e == math.cos(big_e)
+    assert nu == state_from_anomaly_kernel(orb, big_e, cold)
+    np.testing.assert_array_equal(warm, cold)
+    np.testing.assert_allclose(warm, predictor.orbit.state(t), rtol=1e-12, atol=1e-9)
 
 
 def test_vnb_frame_is_orthonormal_and_along_velocity(predictor):
