@@ -23,7 +23,7 @@ from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from sensor_msgs.msg import TimeReference
 
-from cikan_ros.mission import ClosedLoop
+from cikan_ros.mission import ClosedLoop, nominal_start
 from cikan_ros.ros import cdr, convert as cv
 from cikan_ros.ros.graph import QOS_STREAM, Readiness, WaitDeadline, qos_for, run_node
 from cikan_ros.ros.graph_spec import (PATH_HOLD, ACCEL_CMD, CHIEF_ODOM, DEPUTY_ODOM, DIAGNOSTICS, TIME_SHIFT,
@@ -49,8 +49,7 @@ class ControllerNode(Node):
         peers, timeout = [str(n) for n in p["graph.peers"]], float(p["graph.startup_timeout_s"])
         pred = Predictor.from_config(cfg)
         self.loop = ClosedLoop(pred)
-        x0 = pred.orbit.state(0.0)
-        self.loop.command(0, 0.0, x0, x0)  # load the compiled kernels now (the anchor stays put)
+        self.loop.warm_up(nominal_start(pred), pred.orbit.state(0.0))  # kernels loaded before ready
         self.timeline = cv.Timeline(cfg.orbit.epoch_unix_s, cfg.control.period_s)
         self.n_steps = self.loop.n_steps
         self.tau: float | None = None     # last verified shift (s)

@@ -230,6 +230,10 @@ class Readiness:
     def announce(self) -> None:
         from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 
+        # Logged before it is said: the process's first rclpy log line costs 20-25 ms (rclpy finds
+        # the caller with inspect, which maps every loaded module to its file once), and said
+        # first it landed in the lockstep's first step (measured: step 0 at 22-32 ms against 5).
+        self.node.get_logger().info("ready: announcing it on /graph/ready")
         self.ready = True
         values = {"reads": ",".join(s.topic_name for s, _ in self.reads),
                   "writes": ",".join(p.topic_name for p, _ in self.waits if p is not self.pub),
@@ -238,7 +242,6 @@ class Readiness:
             level=DiagnosticStatus.OK, name=self.peer, message="ready",
             hardware_id=self.node.get_fully_qualified_name(),
             values=[KeyValue(key=k, value=v) for k, v in values.items()]))
-        self.node.get_logger().info("ready (announced on /graph/ready)")
 
 
 class WaitDeadline:
