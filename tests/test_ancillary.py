@@ -344,6 +344,26 @@ def test_a_plan_is_tracked_with_the_gain_of_its_band():
     assert not np.allclose(want, loop.plan.u_p[0] - k_default @ (x_hat - loop.plan.x_p[0]), rtol=1e-6, atol=0)
 
 
+def test_warming_a_loop_up_leaves_its_plan_and_anchors_as_they_were():
+    """ClosedLoop.warm_up (the controller node, before it is ready) flies a plan on a copy: the
+    loop warmed up has no plan, and its first step (plan and command) is the one a fresh loop
+    flies, bit for bit."""
+    from cikan_ros.mission import ClosedLoop, nominal_start, sample_start
+
+    pred = PRED
+    x_c = pred.orbit.state(0.0)
+    warmed, fresh = ClosedLoop(pred), ClosedLoop(pred)
+    warmed.warm_up(nominal_start(pred), x_c)
+    assert warmed.plan is None
+    x0 = sample_start(pred, 3)
+    tau, _ = pred.initial_shift(x0, 0.0)
+    for loop in (warmed, fresh):
+        loop.observe(0, x_c, None)
+        assert loop.take_effect(0, tau, x0)
+    np.testing.assert_array_equal(warmed.plan.x_p, fresh.plan.x_p)
+    np.testing.assert_array_equal(warmed.command(0, tau, x0, x_c), fresh.command(0, tau, x0, x_c))
+
+
 def test_the_gain_bands_are_checked():
     for km, r, key in (([2.0, 1.0], [1e11, 1e12], "tsg.ancillary_bands_km"),
                        ([0.0], [1e11], "tsg.ancillary_bands_km"),

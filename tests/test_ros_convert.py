@@ -403,6 +403,46 @@ def test_a_wait_deadline_fires_once_per_missed_wait_and_then_keeps_the_lost_pace
         rclpy.try_shutdown(context=ctx)
 
 
+def test_dropped_event_handlers_leave_the_wait_set_and_messages_still_flow(ros_env: int) -> None:
+    """drop_event_handlers (a ready node under the SingleThreadedExecutor): every QoS event
+    handler of the node's endpoints (the matched callbacks and rclpy's default incompatible-QoS
+    and -type ones) leaves the node's waitables and the endpoints' lists; messages still go from
+    the publisher to the subscription through the executor, and the node is destroyed cleanly."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.task import Future
+    from std_msgs.msg import String
+
+    from cikan_ros.ros.graph import drop_event_handlers
+
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=ros_env)
+    try:
+        node = rclpy.create_node("events", context=ctx)
+        executor = SingleThreadedExecutor(context=ctx)
+        executor.add_node(node)
+        received = Future()
+        pub = node.create_publisher(String, "chatter", 10,
+                                    event_callbacks=PublisherEventCallbacks(matched=lambda _s: None))
+        got: list[str] = []
+        node.create_subscription(String, "chatter", lambda m: (got.append(m.data), received.set_result(True)), 10,
+                                 event_callbacks=SubscriptionEventCallbacks(matched=lambda _s: None))
+        handlers = [h for e in [*node.publishers, *node.subscriptions] for h in e.event_handlers]
+        assert len(handlers) >= 6 and all(h in list(node.waitables) for h in handlers)
+        assert drop_event_handlers(node) == len(handlers)
+        assert not any(h in list(node.waitables) for h in handlers)
+        assert all(not e.event_handlers for e in [*node.publishers, *node.subscriptions])
+        node.create_timer(0.05, lambda: pub.publish(String(data="hello")))
+        executor.spin_until_future_complete(received, timeout_sec=30.0)
+        assert got and got[0] == "hello"
+        executor.shutdown()
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
 def test_odometry_carries_the_state_covariance_in_si() -> None:
     """The navigation covariance (km^2, km^2/s^2) goes out as m^2 and m^2/s^2 in the position
     block of pose.covariance and the linear block of twist.covariance, and comes back."""

@@ -53,6 +53,26 @@ def test_lockstep_graph_equals_offline_loop(conventional: tuple[dict, Path]) -> 
         assert metrics[key] == off[key], key
 
 
+def test_the_other_executor_flies_the_same_mission(ros_env: int, tmp_path: Path,
+                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every node on rclpy's SingleThreadedExecutor (CIKAN_ROS_EXECUTOR=single, the QoS event
+    handlers dropped once each node is ready): one hour of the lockstep flies the offline loop's
+    shifts and thrusts, step for step."""
+    monkeypatch.setenv("CIKAN_ROS_EXECUTOR", "single")
+    cfg = load_config(**{"mission.duration_s": 3600.0})
+    metrics = run_ros_mission(cfg, governor="conventional", bag=tmp_path / "bag")
+    gov = make_governor("conventional", cfg, Predictor.from_config(cfg))
+    offline = run_mission(gov, nominal_start(gov.predictor))
+    msgs = rosbags_messages(tmp_path / "bag")
+    stamps, _ = states(msgs, "/deputy/odom")
+    assert len(stamps) == len(offline.t)
+    np.testing.assert_array_equal(tau_history(msgs, len(stamps), stamps), offline.tau)
+    steps = sim_steps(msgs)
+    u = np.array([[float(w) for w in steps[k]["u_kmps2"].split()] for k in range(len(stamps) - 1)])
+    np.testing.assert_array_equal(u, offline.u[:-1])
+    assert metrics["ros"]["deadline_misses"] == 0 and metrics["tau0_s"] == offline.metrics()["tau0_s"]
+
+
 def test_conventional_mission_docks_without_violation(conventional: tuple[dict, Path]) -> None:
     metrics, bag = conventional
     msgs = rosbags_messages(bag)
