@@ -7,7 +7,8 @@
   excluded);
   ros_update_step_ms_max: the same at the first step and the update steps (governor compute
   included; the governor loads and runs its kernels before the lockstep starts, so the first
-  decision is as fast as the others).
+  decision is as fast as the others); ros_step_ms_max_k / ros_update_step_ms_max_k: the control
+  step where each longest step fell (0: the first-instant search).
 - ros_decision_ms_max: the longest governor decision of the mission (first-instant search or
   update), as governor_node timed it.
 - ros_cpu_per_step_ms: CPU time (user + system) of all the graph's processes per lockstep step:
@@ -47,6 +48,11 @@ def children_cpu_s() -> float:
     return r.ru_utime + r.ru_stime
 
 
+def step_of(k: float | None) -> int | None:
+    """A control step the simulator's summary names (a float in its message), as an int."""
+    return None if k is None or k != k else int(k)
+
+
 def lockstep_figures(cfg: Config, executor: str, follow: Follower | None = None,
                      seed: int | None = None) -> dict[str, Any]:
     """rtf, step latency and wall times of one mission (the nominal start, or Monte Carlo start
@@ -75,8 +81,9 @@ def lockstep_figures(cfg: Config, executor: str, follow: Follower | None = None,
         raise CikanError(f"the ROS benchmark mission ({executor} executor) recorded no lockstep "
                          f"summary of sim_node (missing {', '.join(missing)}): no ROS figures")
     return {"rtf": ros["rtf"], "step_ms_p50": ros["step_ms_p50"], "step_ms_p99": ros["step_ms_p99"],
-            "step_ms_max": ros.get("step_ms_max", float("nan")),
+            "step_ms_max": ros.get("step_ms_max", float("nan")), "step_ms_max_k": step_of(ros.get("step_ms_max_k")),
             "update_step_ms_max": ros["update_step_ms_max"],
+            "update_step_ms_max_k": step_of(ros.get("update_step_ms_max_k")),
             "decision_ms_max": max(m["initial_ms"], m["update_ms_max"]), "lockstep_wall_s": ros["wall_s"],
             "mission_wall_s": ros["launch_wall_s"], "mission_success": m["success"],
             "cpu_s": cpu, "steps": int(ros["steps"])}
