@@ -47,6 +47,7 @@ def conventional_section(cfg: Config, states: BenchStates, repeats: int) -> dict
             for x0 in states.first_seen]
     # tau_prev is feasible: a full rollout to the terminal set
     verify = [thread_timed(pred.verify, s.x_d, s.t, s.tau_prev)[1] for s in states.updates]
+    worst = int(np.argmax(walls))
     out: dict[str, Any] = {
         "n_missions": len(states.starts),
         "n_update_states": len(states.updates),
@@ -54,6 +55,10 @@ def conventional_section(cfg: Config, states: BenchStates, repeats: int) -> dict
         "conventional_update_ms_p50": float(np.median(walls) * 1e3),
         "conventional_update_ms_p99": float(np.percentile(walls, 99) * 1e3),
         "conventional_update_ms_max": float(walls.max() * 1e3),
+        # What the slowest update was: where in its mission, from which shift, with how many Verify calls.
+        "conventional_update_max_t_s": float(states.updates[worst].t),
+        "conventional_update_max_tau_prev_s": float(states.updates[worst].tau_prev),
+        "conventional_update_max_verify_calls": int(calls[worst]),
         "conventional_verify_calls_mean": float(calls.mean()),
         "verify_ms_mean": float(np.mean(verify) * 1e3),
         "conventional_initial_ms_mean": float(np.mean(init) * 1e3),
