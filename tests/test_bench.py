@@ -13,13 +13,15 @@ from cikan_ros.config import load_config, truth_overrides
 from cikan_ros.errors import CikanError
 from cikan_ros import timing
 from cikan_ros.timing import collect_states, is_nominal, median_thread_time, nominal_config
+from cikan_ros.tsg import Predictor
 
 #: The conventional section's keys before the truth model: a nominal run reports exactly these,
 #: and a non-nominal one reports them again as ``nominal_<key>``.
 NOMINAL_KEYS = {
     "n_missions", "n_update_states", "conventional_update_ms_mean", "conventional_update_ms_p50",
     "conventional_update_ms_p99",
-    "conventional_update_ms_max", "conventional_verify_calls_mean", "verify_ms_mean",
+    "conventional_update_ms_max", "conventional_update_max_t_s", "conventional_update_max_tau_prev_s",
+    "conventional_update_max_verify_calls", "conventional_verify_calls_mean", "verify_ms_mean",
     "conventional_initial_ms_mean", "conventional_initial_ms_max", "offline_mission_s_mean",
 }
 #: Figures a non-nominal run adds: the ratio to the nominal configuration and the anchoring cost.
@@ -68,6 +70,11 @@ def test_nominal_run_keeps_its_keys():
     out = conventional_section(cfg, states, 1)
     assert set(out) == NOMINAL_KEYS
     assert nominal_section(cfg, states, 1) == {}
+    # the slowest update is one of the states, and its Verify calls are the bisection's own
+    worst = next(s for s in states.updates if s.t == out["conventional_update_max_t_s"]
+                 and s.tau_prev == out["conventional_update_max_tau_prev_s"])
+    assert out["conventional_update_max_verify_calls"] == Predictor.from_config(cfg).optimal_shift(
+        worst.x_d, worst.t, worst.tau_prev)[1]
 
 
 def test_realistic_robust_bench_reports_ratio_and_anchoring(realistic):
