@@ -78,12 +78,17 @@ def qos_for(topic: str) -> QoSProfile:
 EXECUTORS = ("events", "single")
 
 
-def make_executor(context: Any = None) -> Any:
-    """The process's one executor (see :data:`EXECUTORS`)."""
+def executor_kind() -> str:
+    """Which of :data:`EXECUTORS` this process spins (``CIKAN_ROS_EXECUTOR``, default events)."""
     kind = os.environ.get("CIKAN_ROS_EXECUTOR", "events")
     if kind not in EXECUTORS:
         raise ConfigError(f"CIKAN_ROS_EXECUTOR must be one of {EXECUTORS}, got {kind!r}")
-    if kind == "events":
+    return kind
+
+
+def make_executor(context: Any = None) -> Any:
+    """The process's one executor (see :data:`EXECUTORS`)."""
+    if executor_kind() == "events":
         from rclpy.experimental import EventsExecutor
 
         return EventsExecutor(context=context)
@@ -226,7 +231,7 @@ class Readiness:
             self.prepare()
         self.announce()
         self.on_ready()
-        if os.environ.get("CIKAN_ROS_EXECUTOR", "events") == "single":  # see make_executor
+        if executor_kind() == "single":
             # From a timer of its own, not here: this may run in the callback of one of the handlers
             # it drops (a matched event), and dropped from there the executor ran badly in about
             # half of the missions (measured, robust Verify: step p99 6-13 ms against 2.6-3.1).
