@@ -96,19 +96,56 @@ def state_kernel(orb: NDArray, t: float, out: NDArray) -> float:
 
 
 @nb.njit(cache=True, error_model="numpy")
-def state_warm_kernel(orb: NDArray, t: float, e_guess: float, out: NDArray,
-                      want_nu: bool = True) -> tuple[float, float, float]:
-    """:func:`state_kernel` with Newton started from ``e_guess`` (e.g. the previous sample's E
-    advanced by n dt / (1 - e cos E)); returns (nu, E, cos E). Sequential predictions use it: 1-2
-    Newton iterations instead of 4-6, and the next sample's guess reuses cos E (one cosine less
-    a sample, the same bits)."""
+def state_warm_kernel(orb: NDArray, t: float, e_prev: float, s_prev: float, c_prev: float,
+                      advance: float, out: NDArray, want_nu: bool = True) -> tuple[float, float, float, float]:
+    """:func:`state_kernel` with Newton started from the previous sample's anomaly advanced by
+    ``advance`` (n dt / (1 - e cos E) for a sample dt earlier), given s_prev = sin E_prev and
+    c_prev = cos E_prev; returns (nu, E, sin E, cos E) for the next sample. Sequential
+    predictions (the rollout's virtual target) use it: 1-2 Newton iterations instead of 4-6.
+
+    The sine and cosine of the guess and of each Newton iterate are turned from the previous
+    ones by the angle-sum formulas (:func:`_rotated`) rather than computed: a rollout's ~220 ns
+    a sample drops by ~35 ns (measured). Each turn rounds, so along a chain sin E and cos E drift
+    from the library's: after 10,000 samples of 10 s by at most 6e-13, the state by 1.3e-13 of
+    |r| (tests/test_orbit.py; 3 micrometres on the paper's orbit). A rollout starts its chain
+    from a computed anomaly."""
     e = orb[P_E]
-    m = (orb[P_M0] + orb[P_N] * t + math.pi) % (2.0 * math.pi) - math.pi
     two_pi = 2.0 * math.pi
-    guess = e_guess - two_pi * math.floor((e_guess - m) / two_pi + 0.5)  # same revolution as m
-    big_e = _kepler_newton(m, e, guess)
-    ce = math.cos(big_e)
-    return _perifocal_state(orb, ce, math.sin(big_e), out, want_nu), big_e, ce
+    m = (orb[P_M0] + orb[P_N] * t + math.pi) % two_pi - math.pi
+    big_e = e_prev + advance
+    if abs(advance) <= ROTATE_MAX:
+        se, ce = _rotated(s_prev, c_prev, advance)
+    else:
+        se = math.sin(big_e)
+        ce = math.cos(big_e)
+    big_e -= two_pi * math.floor((big_e - m) / two_pi + 0.5)  # same revolution as m
+    for _ in range(50):   # _kepler_newton, turning sin E and cos E with each step
+        step = (big_e - e * se - m) / (1.0 - e * ce)
+        big_e -= step
+        if abs(step) <= ROTATE_MAX:
+            se, ce = _rotated(se, ce, -step)
+        else:
+            se = math.sin(big_e)
+            ce = math.cos(big_e)
+        if abs(step) < 1e-8:
+            break
+    return _perifocal_state(orb, ce, se, out, want_nu), big_e, se, ce
+
+
+#: Largest angle (rad) :func:`_rotated` turns by: its series' first omitted terms, d^8 / 8! and
+#: d^9 / 9!, are below 3e-21 there, far under half an ulp of sin and cos.
+ROTATE_MAX = 1e-2
+
+
+@nb.njit(cache=True, error_model="numpy", inline="always")
+def _rotated(s: float, c: float, d: float) -> tuple[float, float]:
+    """(sin(x + d), cos(x + d)) from s = sin x, c = cos x and |d| <= ROTATE_MAX: the angle-sum
+    formulas with Taylor series of sin d and cos d (a few multiplications: a sine and a cosine
+    cost ~14 ns, this ~3 ns; each result within an ulp or two of the library's)."""
+    d2 = d * d
+    cd = 1.0 - d2 * (0.5 - d2 * (1.0 / 24.0 - d2 * (1.0 / 720.0)))
+    sd = d * (1.0 - d2 * (1.0 / 6.0 - d2 * (1.0 / 120.0 - d2 * (1.0 / 5040.0))))
+    return s * cd + c * sd, c * cd - s * sd
 
 
 @nb.njit(cache=True, error_model="numpy")

@@ -155,7 +155,7 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
     x = x0.copy()
     xv = np.empty(6)
     u = np.empty(3)
-    ev = cev = 0.0  # the virtual target's eccentric anomaly and its cosine
+    ev = sev = cev = 0.0  # the virtual target's eccentric anomaly, its sine and cosine
     rho = sig = big_r = big_s = 0.0  # tube radii and their state parts
     linear = False
     for j in range(n):
@@ -196,17 +196,17 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
             if j == 0:
                 ev = eccentric_anomaly_kernel(xc[7 + P_M0] + xc[7 + P_N] * tau, xc[7 + P_E])
                 nu_v = state_from_anomaly_kernel(xc[7:7 + N_PARAMS], ev, xv)
-                cev = math.cos(ev)
+                sev, cev = math.sin(ev), math.cos(ev)
             else:  # Newton from the previous sample's anomaly, advanced by one sample
                 e = xc[7 + P_E]
-                nu_v, ev, cev = state_warm_kernel(xc[7:7 + N_PARAMS], tau,
-                                                  ev + xc[7 + P_N] * ts / (1.0 - e * cev), xv)
+                nu_v, ev, sev, cev = state_warm_kernel(xc[7:7 + N_PARAMS], tau, ev, sev, cev,
+                                                       xc[7 + P_N] * ts / (1.0 - e * cev), xv)
         elif j == 0:
             ev = eccentric_anomaly_kernel(orb[P_M0] + orb[P_N] * (t + tau), e)
             nu_v = state_from_anomaly_kernel(orb, ev, xv)
-            cev = math.cos(ev)
+            sev, cev = math.sin(ev), math.cos(ev)
         else:
-            nu_v, ev, cev = state_warm_kernel(orb, t + tau, ev + dm / (1.0 - e * cev), xv)
+            nu_v, ev, sev, cev = state_warm_kernel(orb, t + tau, ev, sev, cev, dm / (1.0 - e * cev), xv)
         dp2 = 0.0
         dv2 = 0.0
         for i in range(3):
