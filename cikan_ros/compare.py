@@ -8,20 +8,48 @@ variant: ΔV and time to τ = 0 as ratios of their sums over the runs to the con
 speed-up (conventional CPU time per active update / the governor's, both summed over the runs;
 CPU time of the deciding thread). Missions are chaotic (SPEC §10): compare over many seeds, and
 choose settings on seeds other than the ones a table reports (Table 2 flies seeds 1-100).
+
+The same figures by the size of the shift the update started from (|τ_prev| in the bands of
+:data:`SHIFT_BANDS`, ``cikan compare --by-shift``): where a mission's active updates and their CPU
+time are, per band the share of updates the governor answered by searching and with its
+network's proposal, and the band's speed-up. The mission's speed-up is the CPU-weighted mix of
+the bands', so this says which phase of the approach a governor has to be fast in.
 """
 
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass
 from typing import Any, Iterable
 
 from .config import Config
 from .errors import CikanError, NoFeasibleShiftError
+from .governor import PATH_NN, PATH_SEARCH, PATH_STALL, UpdateRecord
 from .mission import run_mission, sample_start
 from .montecarlo import process_governor
 from .paired import paired_ratio
 from .parallel import ordered_map
+
+#: Bands of |τ_prev| (s), (low, high]: the approach's first phase, its middle, its last part.
+SHIFT_BANDS: tuple[tuple[float, float], ...] = ((1.0, math.inf), (0.1, 1.0), (0.0, 0.1))
+
+
+def shift_bands(active: Iterable[UpdateRecord]) -> list[dict[str, float]]:
+    """Per band of :data:`SHIFT_BANDS` (|τ_prev| in (low, high]): the active updates, their CPU
+    time (s), Verify calls, and how many searched like the conventional TSG (paths "search",
+    "stall") or answered with the network's proposal ("nn")."""
+    out = [{"updates": 0, "cpu_s": 0.0, "verify_calls": 0, "searched": 0, "nn": 0} for _ in SHIFT_BANDS]
+    for r in active:
+        m = abs(r.tau_prev)
+        band = next(b for (lo, hi), b in zip(SHIFT_BANDS, out) if lo < m <= hi)
+        band["updates"] += 1
+        band["cpu_s"] += r.cpu_s
+        band["verify_calls"] += r.verify_calls
+        band["searched"] += r.path in (PATH_SEARCH, PATH_STALL)
+        band["nn"] += r.path == PATH_NN
+    return out
+
 
 @dataclass(frozen=True)
 class Flight:
@@ -45,7 +73,7 @@ def fly(task: Flight) -> dict[str, Any]:
     return {"delta_v_kmps": m["delta_v_kmps"], "t_tau_zero_s": m["t_tau_zero_s"],
             "success": bool(m["success"]), "violations": int(m["violations"]),
             "active_cpu_s": sum(r.cpu_s for r in active), "active_updates": len(active),
-            "active_verify_calls": sum(r.verify_calls for r in active)}
+            "active_verify_calls": sum(r.verify_calls for r in active), "by_shift": shift_bands(active)}
 
 
 def _conventional_key(cfg: Config) -> str:
@@ -76,7 +104,8 @@ def compare(variants: dict[str, Config], governors: list[str], seeds: list[int],
             # governor) are counted, not flown: the figures pair the starts both flew.
             both = [(a, b) for a, b in zip(mine, conv) if "refused" not in a and "refused" not in b]
             rows.append({"variant": label, "governor": g, "runs": len(both), "refused": len(seeds) - len(both),
-                         **relative_figures([a for a, _ in both], [b for _, b in both])})
+                         **relative_figures([a for a, _ in both], [b for _, b in both]),
+                         "by_shift": band_figures([a for a, _ in both], [b for _, b in both])})
     if all(r["runs"] == 0 for r in rows):
         raise NoFeasibleShiftError(f"Verify refused all {len(seeds)} starts: nothing to compare")
     return rows
@@ -106,6 +135,56 @@ def relative_figures(mine: list[dict[str, Any]], conv: list[dict[str, Any]]) -> 
         "active_speedup": ((_total(conv, "active_cpu_s") / n_conv) / (_total(mine, "active_cpu_s") / n_mine))
         if n_mine and n_conv else None,
     }
+
+
+def band_figures(mine: list[dict[str, Any]], conv: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per band of :data:`SHIFT_BANDS`, over paired runs: the governor's and the conventional
+    TSG's active updates, their shares of all active updates and of the active CPU time, CPU
+    per update (ms), the governor's shares searching and answered by its network, and the band's
+    speed-up (the conventional's CPU per update over the governor's)."""
+    def summed(runs: list[dict[str, Any]]) -> list[dict[str, float]]:
+        return [{k: sum(r["by_shift"][i][k] for r in runs) for k in SHIFT_BAND_KEYS} for i in range(len(SHIFT_BANDS))]
+
+    def share(x: float, total: float) -> float | None:
+        return x / total if total else None
+
+    m, c = summed(mine), summed(conv)
+    m_upd, c_upd = sum(b["updates"] for b in m), sum(b["updates"] for b in c)
+    m_cpu, c_cpu = sum(b["cpu_s"] for b in m), sum(b["cpu_s"] for b in c)
+    out = []
+    for (lo, hi), a, b in zip(SHIFT_BANDS, m, c):
+        a_ms = 1e3 * a["cpu_s"] / a["updates"] if a["updates"] else None
+        b_ms = 1e3 * b["cpu_s"] / b["updates"] if b["updates"] else None
+        out.append({"low_s": lo, "high_s": hi, "updates": a["updates"], "conventional_updates": b["updates"],
+                    "update_share": share(a["updates"], m_upd), "conventional_update_share": share(b["updates"], c_upd),
+                    "cpu_share": share(a["cpu_s"], m_cpu), "conventional_cpu_share": share(b["cpu_s"], c_cpu),
+                    "ms_per_update": a_ms, "conventional_ms_per_update": b_ms,
+                    "search_share": share(a["searched"], a["updates"]), "nn_share": share(a["nn"], a["updates"]),
+                    "speedup": b_ms / a_ms if a_ms and b_ms else None})
+    return out
+
+
+SHIFT_BAND_KEYS = ("updates", "cpu_s", "verify_calls", "searched", "nn")
+
+
+def markdown_by_shift(rows: list[dict[str, Any]]) -> str:
+    """The bands of each row of :func:`compare` (``by_shift``) as a Markdown table."""
+    def num(x: float | None, fmt: str) -> str:
+        return "-" if x is None else format(x, fmt)
+
+    out = [r"| variant | governor | \|τ_prev\| (s) |"
+           " updates (conv.) | share of updates (conv.) | "
+           "share of CPU (conv.) | ms / update (conv.) | searching | network accepted | speed-up |",
+           "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        for b in r["by_shift"]:
+            band = f"> {b['low_s']:g}" if math.isinf(b["high_s"]) else f"{b['low_s']:g} - {b['high_s']:g}"
+            out.append(f"| {r['variant']} | {r['governor']} | {band} | {b['updates']} ({b['conventional_updates']}) | "
+                       f"{num(b['update_share'], '.2f')} ({num(b['conventional_update_share'], '.2f')}) | "
+                       f"{num(b['cpu_share'], '.2f')} ({num(b['conventional_cpu_share'], '.2f')}) | "
+                       f"{num(b['ms_per_update'], '.3f')} ({num(b['conventional_ms_per_update'], '.3f')}) | "
+                       f"{num(b['search_share'], '.2f')} | {num(b['nn_share'], '.2f')} | {num(b['speedup'], '.2f')} |")
+    return "\n".join(out)
 
 
 def markdown(rows: list[dict[str, Any]]) -> str:

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from cikan_ros.cli import main
-from cikan_ros.compare import compare, relative_figures
+from cikan_ros.compare import SHIFT_BANDS, band_figures, compare, relative_figures, shift_bands
+from cikan_ros.governor import UpdateRecord
 from cikan_ros.config import load_config
 from cikan_ros.registry import make_governor
 from cikan_ros.mission import run_mission, sample_start
@@ -32,6 +33,43 @@ def test_relative_figures_are_ratios_of_sums_on_paired_starts() -> None:
     assert f["verify_calls_mean"] == pytest.approx(450 / 200)
     assert f["active_speedup"] == pytest.approx((0.40 / 300) / (0.03 / 200))
     assert (f["success"], f["violations"]) == (1, 0)
+
+
+def test_updates_fall_in_the_band_of_the_shift_they_started_from() -> None:
+    """shift_bands: |τ_prev| in (1, inf), (0.1, 1], (0, 0.1] s, edges in the lower band; either
+    side of the chief; CPU, calls, searching ("search", "stall") and network ("nn") counted."""
+    assert SHIFT_BANDS == ((1.0, math.inf), (0.1, 1.0), (0.0, 0.1))
+    recs = [UpdateRecord(-4.0, "search", 20, 0.0, 1, -5.0, 2e-3),
+            UpdateRecord(-0.9, "nn", 2, 0.0, 2, -1.0, 1e-4),       # 1.0: the middle band
+            UpdateRecord(0.4, "stall", 15, 0.0, 3, 0.5, 5e-4),      # ahead of the chief
+            UpdateRecord(-0.09, "keep", 0, 0.0, 4, -0.1, 1e-5),     # 0.1: the last band
+            UpdateRecord(-0.01, "audit", 3, 0.0, 5, -0.02, 3e-5)]
+    b = shift_bands(recs)
+    assert [x["updates"] for x in b] == [1, 2, 2]
+    assert [x["verify_calls"] for x in b] == [20, 17, 3]
+    assert [x["searched"] for x in b] == [1, 1, 0] and [x["nn"] for x in b] == [0, 1, 0]
+    assert [x["cpu_s"] for x in b] == pytest.approx([2e-3, 6e-4, 4e-5])
+
+
+def test_band_figures_are_shares_and_ratios_of_sums() -> None:
+    """band_figures over two paired runs: shares of the updates and of the CPU time among the
+    bands, ms per update, the searching and network shares, speed-up = conventional ms / mine."""
+    def run(bands):
+        return {"by_shift": [dict(zip(("updates", "cpu_s", "verify_calls", "searched", "nn"), x)) for x in bands]}
+
+    mine = [run([(2, 2e-3, 10, 1, 0), (1, 1e-4, 1, 0, 1), (5, 5e-5, 5, 5, 0)]),
+            run([(2, 2e-3, 10, 2, 0), (0, 0.0, 0, 0, 0), (3, 3e-5, 3, 3, 0)])]
+    conv = [run([(3, 6e-3, 60, 0, 0), (1, 3e-4, 15, 0, 0), (4, 4e-5, 20, 0, 0)]),
+            run([(1, 2e-3, 20, 0, 0), (1, 3e-4, 15, 0, 0), (4, 4e-5, 20, 0, 0)])]
+    f = band_figures(mine, conv)
+    assert [b["updates"] for b in f] == [4, 1, 8] and [b["conventional_updates"] for b in f] == [4, 2, 8]
+    assert [b["update_share"] for b in f] == pytest.approx([4 / 13, 1 / 13, 8 / 13])
+    assert [b["cpu_share"] for b in f] == pytest.approx([4e-3 / 4.18e-3, 1e-4 / 4.18e-3, 8e-5 / 4.18e-3])
+    assert [b["ms_per_update"] for b in f] == pytest.approx([1.0, 0.1, 0.01])
+    assert [b["conventional_ms_per_update"] for b in f] == pytest.approx([2.0, 0.3, 0.01])
+    assert [b["speedup"] for b in f] == pytest.approx([2.0, 3.0, 1.0])
+    assert [b["search_share"] for b in f] == pytest.approx([3 / 4, 0.0, 1.0])
+    assert [b["nn_share"] for b in f] == pytest.approx([0.0, 1.0, 0.0])
 
 
 def test_a_learned_governor_against_the_conventional_on_the_same_starts() -> None:
@@ -74,6 +112,12 @@ def test_a_learned_governor_against_the_conventional_on_the_same_starts() -> Non
         assert row["success"] == sum(m["success"] for m in mine) and row["violations"] == 0
         calls = sum(u.verify_calls for u in active) / len(active)
         assert row["verify_calls_mean"] == pytest.approx(calls, rel=1e-12)
+        # by the shift they started from: every active update in one band, of the governor and
+        # of the conventional TSG; the CPU shares of all bands sum to 1
+        assert sum(b["updates"] for b in row["by_shift"]) == len(active)
+        assert sum(b["conventional_updates"] for b in row["by_shift"]) == len(conv_active)
+        assert sum(b["cpu_share"] for b in row["by_shift"]) == pytest.approx(1.0)
+        assert sum(b["conventional_cpu_share"] for b in row["by_shift"]) == pytest.approx(1.0)
         # what a learned governor is for: fewer predictions per decision than the bisection's
         # ~log2(|tau_prev| / 1e-5 s) (measured 8.1 keep, 10.5 paper against 18.6)
         assert row["verify_calls_mean"] < conv_calls

@@ -28,6 +28,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--workers", type=int, default=1, help="local worker processes")
     p.add_argument("--dask", default=None, metavar="ADDRESS", help="Dask scheduler instead of local workers")
     p.add_argument("--json", action="store_true", help="print one JSON object per row")
+    p.add_argument("--by-shift", action="store_true",
+                   help="also print the figures by the shift each update started from (|tau_prev| "
+                        "> 1 s, 0.1-1 s, < 0.1 s): where the updates and the CPU time are, searching "
+                        "and network shares, the speed-up per band (in --json always, as by_shift)")
     add_config_args(p)
     p.set_defaults(func=run)
 
@@ -58,7 +62,7 @@ def variant_configs(args: argparse.Namespace) -> dict[str, Config]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..compare import compare, markdown
+    from ..compare import compare, markdown, markdown_by_shift
     from ..registry import LEARNED_NAMES
 
     variants = variant_configs(args)
@@ -69,4 +73,7 @@ def run(args: argparse.Namespace) -> int:
             print(dumps(r))
     else:
         print(markdown(rows))
+        if args.by_shift:
+            print()
+            print(markdown_by_shift(rows))
     return 0
