@@ -19,6 +19,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.linalg import expm, solve_discrete_are
 
 from .config import ControlConfig
+from .kernel_cache import cache_root
 from .dynamics import linearisation
 from .orbit import KeplerOrbit, elements_to_state
 
@@ -59,8 +60,7 @@ def gain_at(orbit: KeplerOrbit, nu: float, cfg: ControlConfig) -> NDArray:
 
 def cache_dir() -> Path:
     """Where gain tables are cached on disk: $CIKAN_CACHE_DIR or ~/.cache/cikan_ros."""
-    env = os.environ.get("CIKAN_CACHE_DIR")
-    return Path(env) if env else Path.home() / ".cache" / "cikan_ros"
+    return cache_root()
 
 
 def compute_gain_table(orbit: KeplerOrbit, cfg: ControlConfig) -> NDArray:

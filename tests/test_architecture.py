@@ -21,6 +21,7 @@ PACKAGES = ("cikan_ros", "sim_node", "governor_node", "controller_node")
 #: layers and of its own group: never of a higher layer, nor of another group of its layer.
 LAYERS: list[dict[str, list[str]]] = [
     {"base": ["cikan_ros", "cikan_ros.errors", "cikan_ros.paths", "cikan_ros.units", "cikan_ros.config",
+              "cikan_ros.kernel_cache",
               "cikan_ros.parallel", "cikan_ros.paired", "cikan_ros.progress",
               "cikan_ros.strict_json"]},
     {"physics": ["cikan_ros.orbit", "cikan_ros.dynamics", "cikan_ros.control", "cikan_ros.constraints",
