@@ -33,13 +33,15 @@ from .parallel import ordered_map
 
 #: Bands of |τ_prev| (s), (low, high]: the approach's first phase, its middle, its last part.
 SHIFT_BANDS: tuple[tuple[float, float], ...] = ((1.0, math.inf), (0.1, 1.0), (0.0, 0.1))
+#: What :func:`shift_bands` counts in each band.
+SHIFT_BAND_KEYS = ("updates", "cpu_s", "verify_calls", "searched", "nn")
 
 
 def shift_bands(active: Iterable[UpdateRecord]) -> list[dict[str, float]]:
     """Per band of :data:`SHIFT_BANDS` (|τ_prev| in (low, high]): the active updates, their CPU
     time (s), Verify calls, and how many searched like the conventional TSG (paths "search",
     "stall") or answered with the network's proposal ("nn")."""
-    out = [{"updates": 0, "cpu_s": 0.0, "verify_calls": 0, "searched": 0, "nn": 0} for _ in SHIFT_BANDS]
+    out = [{k: 0.0 if k == "cpu_s" else 0 for k in SHIFT_BAND_KEYS} for _ in SHIFT_BANDS]
     for r in active:
         m = abs(r.tau_prev)
         band = next(b for (lo, hi), b in zip(SHIFT_BANDS, out) if lo < m <= hi)
@@ -103,9 +105,9 @@ def compare(variants: dict[str, Config], governors: list[str], seeds: list[int],
             # Starts Verify refused (robust Verify; the initial search is the same for every
             # governor) are counted, not flown: the figures pair the starts both flew.
             both = [(a, b) for a, b in zip(mine, conv) if "refused" not in a and "refused" not in b]
+            flown, paired = [a for a, _ in both], [b for _, b in both]
             rows.append({"variant": label, "governor": g, "runs": len(both), "refused": len(seeds) - len(both),
-                         **relative_figures([a for a, _ in both], [b for _, b in both]),
-                         "by_shift": band_figures([a for a, _ in both], [b for _, b in both])})
+                         **relative_figures(flown, paired), "by_shift": band_figures(flown, paired)})
     if all(r["runs"] == 0 for r in rows):
         raise NoFeasibleShiftError(f"Verify refused all {len(seeds)} starts: nothing to compare")
     return rows
@@ -162,9 +164,6 @@ def band_figures(mine: list[dict[str, Any]], conv: list[dict[str, Any]]) -> list
                     "search_share": share(a["searched"], a["updates"]), "nn_share": share(a["nn"], a["updates"]),
                     "speedup": b_ms / a_ms if a_ms and b_ms else None})
     return out
-
-
-SHIFT_BAND_KEYS = ("updates", "cpu_s", "verify_calls", "searched", "nn")
 
 
 def markdown_by_shift(rows: list[dict[str, Any]]) -> str:

@@ -11,7 +11,6 @@ import functools
 import hashlib
 import math
 import os
-from pathlib import Path
 
 import numba as nb
 import numpy as np
@@ -19,8 +18,8 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.linalg import expm, solve_discrete_are
 
 from .config import ControlConfig
-from .kernel_cache import cache_root
 from .dynamics import linearisation
+from .kernel_cache import cache_root
 from .orbit import KeplerOrbit, elements_to_state
 
 
@@ -58,11 +57,6 @@ def gain_at(orbit: KeplerOrbit, nu: float, cfg: ControlConfig) -> NDArray:
     return k
 
 
-def cache_dir() -> Path:
-    """Where gain tables are cached on disk: $CIKAN_CACHE_DIR or ~/.cache/cikan_ros."""
-    return cache_root()
-
-
 def compute_gain_table(orbit: KeplerOrbit, cfg: ControlConfig) -> NDArray:
     """K(nu) on the grid nu_j = j * grid_deg, j = 0 .. 360/grid_deg (last row = first): (J+1, 3, 6)."""
     n_cells = round(360.0 / cfg.grid_deg)
@@ -85,7 +79,7 @@ def gain_table(orbit: KeplerOrbit, cfg: ControlConfig) -> NDArray:
     """
     n_cells = round(360.0 / cfg.grid_deg)
     key = hashlib.sha256(repr((orbit, cfg)).encode()).hexdigest()[:24]
-    path = cache_dir() / f"gains-{key}.npy"
+    path = cache_root() / f"gains-{key}.npy"
     table = None
     try:
         table = np.load(path, allow_pickle=False)
