@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from hypothesis import given, settings, strategies as st
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import AccelStamped
 from nav_msgs.msg import Odometry
@@ -323,6 +324,37 @@ def test_bag_writer_as_a_context_manager_closes_the_bag_on_an_exception(tmp_path
     with BagWriter(tmp_path / "empty") as empty:   # and a block that ends normally
         pass
     assert empty.closed and (tmp_path / "empty" / "metadata.yaml").exists()
+
+
+_TEXT = st.text(st.characters(blacklist_categories=("Cs",), blacklist_characters="\x85\u2028\u2029"), max_size=60)
+
+
+@settings(max_examples=40, deadline=None)
+@given(custom=st.dictionaries(_TEXT, _TEXT, max_size=4),
+       counts=st.lists(st.integers(0, 10**6), min_size=0, max_size=3),
+       times=st.tuples(st.integers(0, 2**62), st.integers(0, 2**40)))
+def test_bag_writer_metadata_text_is_the_documents_yaml(tmp_path_factory: pytest.TempPathFactory,
+                                                         custom: dict[str, str], counts: list[int],
+                                                         times: tuple[int, int]) -> None:
+    """metadata.yaml is composed from cached topic entries (BagWriter.metadata_text): PyYAML
+    reads it as the document itself (metadata_info), with the topics' QoS profiles, counts and
+    any custom data (quotes, colons, newlines, non-ASCII), the same as a whole-document dump."""
+    topics = [("/clock", "rosgraph_msgs/msg/Clock", QOS_STREAM), ("/tsg/governor",
+               "diagnostic_msgs/msg/DiagnosticStatus", QOS_PROFILES["latched"]),
+              ("/deputy/odom", "nav_msgs/msg/Odometry", QOS_STREAM)][:len(counts)]
+    writer = BagWriter(tmp_path_factory.mktemp("meta") / "bag", custom_data=custom)
+    for (topic, type_name, qos), n in zip(topics, counts):
+        writer.add_topic(topic, type_name, [qos_dict(qos)])
+        writer.flushed[topic] = n
+    writer.metadata_text()   # the cache filled, then the counts change
+    writer.flushed = {t: n + 1 for t, n in writer.flushed.items()}
+    writer.flushed_times = [times[0], times[0] + times[1]]
+    doc = {"rosbag2_bagfile_information": writer.metadata_info()}
+    text = writer.metadata_text()
+    assert yaml.safe_load(text) == doc == yaml.safe_load(yaml.safe_dump(doc, sort_keys=False))
+    assert [e["message_count"] for e in doc["rosbag2_bagfile_information"]["topics_with_message_count"]] \
+        == [n + 1 for n in counts]
+    writer.close()
 
 
 def test_parameters_declared_with_descriptions_and_validated(ros_env: int) -> None:
