@@ -196,3 +196,20 @@ def test_the_stall_rule_searches_after_held_updates(predictor: Predictor, stall_
     stall = active[3]
     assert stall.tau_s == pred.optimal_shift(*_state(res, stall, pred), stall.tau_prev)[0] != stall.tau_prev
     assert {u.path for u in active[4:]} <= {PATH_SEARCH}
+
+
+def test_a_searching_governor_consults_its_network_only_to_judge_it(predictor: Predictor) -> None:
+    """Searching (credit 0: learned.trust_credit = 0 never trusts), every active update is the
+    rule's search; the network is consulted exactly on the updates whose π* moved τ_prev beyond
+    the audit's reach (LearnedGovernor.judgeable: a shadow judgement), never on the others."""
+    pred = Predictor.from_config(predictor.config.replace(**{"learned.trust_credit": 0,
+                                                             "mission.duration_s": 3600.0}))
+    gov = _constant(pred, 3.0)
+    consulted = []
+    network = gov.proposal
+    gov.proposal = lambda *args: consulted.append(args) or network(*args)   # type: ignore[method-assign]
+    res = run_mission(gov, sample_start(pred, 2), 2)
+    active = [u for u in res.updates if u.active and u.path == PATH_SEARCH]
+    judged = [u for u in active if gov.judgeable(u.tau_prev, u.tau_s)]
+    assert len(active) >= 10 and 0 < len(judged) < len(active)
+    assert len(consulted) == len(judged)
