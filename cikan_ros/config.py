@@ -494,6 +494,7 @@ class LearnedConfig:
     audit_step: float = 0.1
     stall_updates: int = 10
     stall_judge: str = "progress"
+    robust_tail_s: float = 0.1
     trust_at_start: str = "network"
     foreign_model: bool = False
 
@@ -525,6 +526,8 @@ class LearnedConfig:
         _check(isinstance(self.stall_updates, int) and 0 <= self.stall_updates <= 1000,
                "learned.stall_updates", self.stall_updates,
                "must be an integer in [0, 1000] (0: never search after a stall)")
+        _check(math.isfinite(self.robust_tail_s) and self.robust_tail_s >= 0.0, "learned.robust_tail_s",
+               self.robust_tail_s, "must be a finite number of seconds >= 0 (0: no handover)")
         _check(self.stall_judge in ("progress", "audit"), "learned.stall_judge", self.stall_judge,
                "must be 'progress' (any progress a stall search finds is a miss) or 'audit' "
                "(only progress beyond audit_step)")

@@ -32,6 +32,7 @@ PATH_PROBE = "probe"            # keep rule: budgeted bisection over [tau_prev, 
 PATH_SEARCH = "search"          # keep rule, network not trusted: the conventional TSG's pi*
 PATH_AUDIT = "audit"            # keep rule: the scheduled audit found the answer lagging and took the audited shift
 PATH_STALL = "stall"            # keep rule: tau held for learned.stall_updates updates; the conventional TSG's pi*
+PATH_TAIL = "tail"              # keep rule, robust Verify, |tau_prev| <= learned.robust_tail_s: the conventional TSG's pi*
 
 
 Clock = tuple[float, float]

@@ -21,8 +21,9 @@ def _run(dv: float, t0: float | None, cpu: float, n: int, calls: int, ok: bool =
 
 
 def test_relative_figures_are_ratios_of_sums_on_paired_starts() -> None:
-    """ΔV ratio = Σ mine / Σ conv; t(τ=0) only over runs where both reached 0; speed-up = conv CPU
-    per active update / mine; calls per active update."""
+    """ΔV ratio = Σ mine / Σ conv; t(τ=0) only over runs where both reached 0; active speed-up =
+    conv CPU per active update / mine, mission speed-up = conv CPU of the missions' active updates /
+    mine; calls per active update."""
     conv = [_run(1.0, 1000.0, 0.10, 100, 1800), _run(3.0, None, 0.30, 200, 3600)]
     mine = [_run(1.5, 1100.0, 0.01, 50, 100), _run(2.5, 2000.0, 0.02, 150, 350, ok=False)]
     f = relative_figures(mine, conv)
@@ -32,6 +33,7 @@ def test_relative_figures_are_ratios_of_sums_on_paired_starts() -> None:
     assert f["t_tau_zero_ratio"] == pytest.approx(1100.0 / 1000.0)
     assert f["verify_calls_mean"] == pytest.approx(450 / 200)
     assert f["active_speedup"] == pytest.approx((0.40 / 300) / (0.03 / 200))
+    assert f["mission_speedup"] == pytest.approx(0.40 / 0.03)   # whole missions: CPU over CPU
     assert (f["success"], f["violations"]) == (1, 0)
 
 

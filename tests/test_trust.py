@@ -5,6 +5,7 @@ no worse than the conventional TSG by more than the issue's bound on these start
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -213,3 +214,38 @@ def test_a_searching_governor_consults_its_network_only_to_judge_it(predictor: P
     judged = [u for u in active if gov.judgeable(u.tau_prev, u.tau_s)]
     assert len(active) >= 10 and 0 < len(judged) < len(active)
     assert len(consulted) == len(judged)
+
+
+@functools.lru_cache(maxsize=1)
+def _robust_updates() -> tuple:
+    """The update states of a conventional mission under robust Verify, realistic truth, start 1."""
+    from cikan_ros.config import truth_overrides
+
+    pred = Predictor.from_config(load_config(None, **truth_overrides("realistic"), **{"tsg.robust": True}))
+    return tuple(run_mission(ConventionalGovernor(pred), sample_start(pred, 1), 1).update_states())
+
+
+@pytest.mark.parametrize("tail_s", [0.1, 0.0])
+def test_the_robust_tail_is_the_conventional_search(predictor: Predictor, tail_s: float) -> None:
+    """Under robust Verify an update with |τ_prev| <= learned.robust_tail_s is the conventional
+    TSG's π* on the anchored chief (path "tail"), scheduled or not, whatever the network proposes
+    (here 1 µs: every proposal too aggressive) and however trusted; with 0 the keep rule decides
+    there; under nominal Verify never."""
+    from cikan_ros.config import truth_overrides
+    from cikan_ros.governor import PATH_TAIL
+
+    cfg = load_config(None, **truth_overrides("realistic"),
+                      **{"tsg.robust": True, "learned.robust_tail_s": tail_s})
+    pred = Predictor.from_config(cfg)
+    tail = [s for s in _robust_updates() if 0.0 < abs(s.tau_prev) <= 0.1]
+    assert len(tail) >= 4 and {s.k % cfg.learned.probe_every == 0 for s in tail} == {True, False}
+    gov = _constant(pred, 1e-6)
+    for s in tail[:6]:
+        gov.trust.grant()
+        rec = gov.update(s.x_d, s.x_c, s.t, s.tau_prev)
+        if tail_s:
+            star, calls = gov.anchor(s.x_c, s.t).optimal_shift(s.x_d, s.t, s.tau_prev)
+            assert (rec.path, rec.tau_s, rec.verify_calls) == (PATH_TAIL, star, calls)
+        else:
+            assert rec.path != PATH_TAIL
+    assert not _constant(predictor, 1e-6)._robust_tail(predictor, -0.05)   # nominal Verify

@@ -28,7 +28,7 @@ conventional TSG and in the same run, under the default update rule (``learned.a
   ``<m>_mission_speedup_mean`` against the conventional TSG's missions from the same starts,
   flown in turn with them, ``<m>_mission_speedup_worst`` (the worst single mission),
   ``<m>_mission_verify_calls_mean``, ``<m>_search_rate``: the share of those updates answered by
-  searching (paths "search" and "stall"), and ``<m>_mission_nn_accept_rate``
+  searching (paths "search", "stall" and "tail"), and ``<m>_mission_nn_accept_rate``
   (:func:`mission_figures`); ``cikan bench`` shows these first;
 - ``learned_foreign_models``: the models flown with ``learned.foreign_model`` (made for another
   scenario, side or Verify: :func:`cikan_ros.learn.governor.load_learned_governor`) and why;
@@ -185,8 +185,8 @@ def mission_figures(conventional: Any, governors: list[Any], states: BenchStates
     ``_mission_update_ms_mean``, ``_mission_speedup_mean`` (conventional mean over its mean,
     all active updates of all starts pooled), ``_mission_speedup_worst`` (the lowest of the same
     ratio start by start: the worst mission), ``_mission_verify_calls_mean`` (per active update),
-    ``_search_rate`` (share of its active updates answered by searching: paths "search" and
-    "stall") and ``_mission_nn_accept_rate`` (share answered with the network's proposal,
+    ``_search_rate`` (share of its active updates answered by searching: paths "search",
+    "stall" and "tail") and ``_mission_nn_accept_rate`` (share answered with the network's proposal,
     :func:`cikan_ros.learn.governor.nn_accept_rate`, pooled)."""
     from ..mission import run_mission
     from .governor import SEARCHED, nn_accept_rate
