@@ -27,6 +27,9 @@ conventional TSG and in the same run, under the default update rule (``learned.a
   (CPU time of the active updates of the governor's own missions from the benchmark's starts),
   ``<m>_mission_speedup_mean`` against the conventional TSG's missions from the same starts,
   flown in turn with them, ``<m>_mission_speedup_worst`` (the worst single mission),
+  ``<m>_mission_cpu_speedup`` and ``_worst``: the same missions' CPU, conventional over the
+  governor's (whole missions: the ratio per update flatters a governor that lags π* and flies
+  more of the cheap updates near τ = 0),
   ``<m>_mission_verify_calls_mean``, ``<m>_search_rate``: the share of those updates answered by
   searching (paths "search", "stall" and "tail"), and ``<m>_mission_nn_accept_rate``
   (:func:`mission_figures`); ``cikan bench`` shows these first;
@@ -184,7 +187,8 @@ def mission_figures(conventional: Any, governors: list[Any], states: BenchStates
     TSG's active updates (CPU time, Verify calls); per governor ``<m>``: its
     ``_mission_update_ms_mean``, ``_mission_speedup_mean`` (conventional mean over its mean,
     all active updates of all starts pooled), ``_mission_speedup_worst`` (the lowest of the same
-    ratio start by start: the worst mission), ``_mission_verify_calls_mean`` (per active update),
+    ratio start by start: the worst mission), ``_mission_cpu_speedup`` and ``_worst`` (the
+    conventional missions' active CPU over the governor's, pooled and start by start), ``_mission_verify_calls_mean`` (per active update),
     ``_search_rate`` (share of its active updates answered by searching: paths "search",
     "stall" and "tail") and ``_mission_nn_accept_rate`` (share answered with the network's proposal,
     :func:`cikan_ros.learn.governor.nn_accept_rate`, pooled)."""
@@ -204,6 +208,9 @@ def mission_figures(conventional: Any, governors: list[Any], states: BenchStates
     def cpu_mean(updates: list[Any]) -> float:
         return float(np.mean([u.cpu_s for u in updates]))
 
+    def cpu_total(updates: list[Any]) -> float:
+        return float(sum(u.cpu_s for u in updates))
+
     def calls_mean(updates: list[Any]) -> float:
         return float(np.mean([u.verify_calls for u in updates]))
 
@@ -217,6 +224,11 @@ def mission_figures(conventional: Any, governors: list[Any], states: BenchStates
         out[f"{g}_mission_speedup_mean"] = conv / mean
         out[f"{g}_mission_speedup_worst"] = min(cpu_mean(c) / cpu_mean(m)
                                                 for c, m in zip(flown[conventional.name], flown[g]) if c and m)
+        # the CPU of whole missions: unlike the ratio per update, not flattered by a governor
+        # that lags pi* and flies more of the cheap updates near tau = 0
+        out[f"{g}_mission_cpu_speedup"] = cpu_total(pooled(conventional.name)) / cpu_total(updates)
+        out[f"{g}_mission_cpu_speedup_worst"] = min(cpu_total(c) / cpu_total(m)
+                                                    for c, m in zip(flown[conventional.name], flown[g]) if c and m)
         out[f"{g}_mission_verify_calls_mean"] = calls_mean(updates)
         out[f"{g}_search_rate"] = sum(u.path in SEARCHED for u in updates) / len(updates)
         out[f"{g}_mission_nn_accept_rate"] = nn_accept_rate(updates)
