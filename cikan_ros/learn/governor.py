@@ -278,8 +278,10 @@ class LearnedGovernor:
               propose: Callable[[], float], k: int) -> tuple[float, str, int, ChiefCache | None]:
         """The keep rule (without the zero test) with the anchored model ``pred``: (τ, path,
         Verify calls, chief cache or None). Its steps, as docs/learned_update_rule.md states
-        them: trust (an untrusted network's update is the conventional TSG's), stall, ladder,
-        probe, audit, and the judgement of the update by the trust."""
+        them: robust Verify's tail (the conventional TSG's update near τ = 0), trust (an
+        untrusted network's update is the conventional TSG's), stall, last approach, ladder,
+        probe, audit, and the judgement of the update by the trust. The network runs only when a
+        step needs its proposal (``propose``)."""
         if self._robust_tail(pred, tau_prev):
             tau, calls = pred.optimal_shift(x_d, t, tau_prev)
             return tau, PATH_TAIL, calls, None
