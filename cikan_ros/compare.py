@@ -124,6 +124,7 @@ def relative_figures(mine: list[dict[str, Any]], conv: list[dict[str, Any]]) -> 
     both_zero = [(a, b) for a, b in zip(mine, conv)
                  if a["t_tau_zero_s"] is not None and b["t_tau_zero_s"] is not None]
     n_mine, n_conv = _total(mine, "active_updates"), _total(conv, "active_updates")
+    cpu_mine, cpu_conv = _total(mine, "active_cpu_s"), _total(conv, "active_cpu_s")
     if not mine:
         return {"success": 0, "violations": 0, "delta_v_ratio": None, "delta_v_ratio_se": None,
                 "t_tau_zero_ratio": None, "verify_calls_mean": None, "active_speedup": None,
@@ -137,13 +138,11 @@ def relative_figures(mine: list[dict[str, Any]], conv: list[dict[str, Any]]) -> 
         "t_tau_zero_ratio": (sum(a["t_tau_zero_s"] for a, _ in both_zero)
                              / sum(b["t_tau_zero_s"] for _, b in both_zero)) if both_zero else None,
         "verify_calls_mean": _total(mine, "active_verify_calls") / n_mine if n_mine else None,
-        "active_speedup": ((_total(conv, "active_cpu_s") / n_conv) / (_total(mine, "active_cpu_s") / n_mine))
-        if n_mine and n_conv else None,
+        "active_speedup": (cpu_conv / n_conv) / (cpu_mine / n_mine) if n_mine and n_conv else None,
         # Whole missions: the CPU of all their active updates. Not the same as per update when
         # the governors fly different numbers of updates: one that lags π* flies more of the
         # cheap updates near τ = 0, which lowers its mean and flatters a per-update ratio.
-        "mission_speedup": (_total(conv, "active_cpu_s") / _total(mine, "active_cpu_s"))
-        if _total(mine, "active_cpu_s") > 0 else None,
+        "mission_speedup": cpu_conv / cpu_mine if cpu_mine > 0 else None,
     }
 
 

@@ -188,9 +188,10 @@ def mission_figures(conventional: Any, governors: list[Any], states: BenchStates
     ``_mission_update_ms_mean``, ``_mission_speedup_mean`` (conventional mean over its mean,
     all active updates of all starts pooled), ``_mission_speedup_worst`` (the lowest of the same
     ratio start by start: the worst mission), ``_mission_cpu_speedup`` and ``_worst`` (the
-    conventional missions' active CPU over the governor's, pooled and start by start), ``_mission_verify_calls_mean`` (per active update),
-    ``_search_rate`` (share of its active updates answered by searching: paths "search",
-    "stall" and "tail") and ``_mission_nn_accept_rate`` (share answered with the network's proposal,
+    conventional missions' active CPU over the governor's, pooled and start by start),
+    ``_mission_verify_calls_mean`` (per active update), ``_search_rate`` (share of its active
+    updates answered by searching: paths "search", "stall" and "tail") and
+    ``_mission_nn_accept_rate`` (share answered with the network's proposal,
     :func:`cikan_ros.learn.governor.nn_accept_rate`, pooled)."""
     from ..mission import run_mission
     from .governor import SEARCHED, nn_accept_rate
@@ -214,9 +215,10 @@ def mission_figures(conventional: Any, governors: list[Any], states: BenchStates
     def calls_mean(updates: list[Any]) -> float:
         return float(np.mean([u.verify_calls for u in updates]))
 
-    conv = cpu_mean(pooled(conventional.name))
+    conv_updates = pooled(conventional.name)
+    conv, conv_total = cpu_mean(conv_updates), cpu_total(conv_updates)
     out: dict[str, Any] = {"mission_conventional_update_ms_mean": conv * 1e3,
-                           "mission_conventional_verify_calls_mean": calls_mean(pooled(conventional.name))}
+                           "mission_conventional_verify_calls_mean": calls_mean(conv_updates)}
     for gov in governors:
         g, updates = gov.name, pooled(gov.name)
         mean = cpu_mean(updates)
@@ -226,7 +228,7 @@ def mission_figures(conventional: Any, governors: list[Any], states: BenchStates
                                                 for c, m in zip(flown[conventional.name], flown[g]) if c and m)
         # the CPU of whole missions: unlike the ratio per update, not flattered by a governor
         # that lags pi* and flies more of the cheap updates near tau = 0
-        out[f"{g}_mission_cpu_speedup"] = cpu_total(pooled(conventional.name)) / cpu_total(updates)
+        out[f"{g}_mission_cpu_speedup"] = conv_total / cpu_total(updates)
         out[f"{g}_mission_cpu_speedup_worst"] = min(cpu_total(c) / cpu_total(m)
                                                     for c, m in zip(flown[conventional.name], flown[g]) if c and m)
         out[f"{g}_mission_verify_calls_mean"] = calls_mean(updates)

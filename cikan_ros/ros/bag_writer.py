@@ -231,7 +231,8 @@ class BagWriter:
         self.flushed_times: list[int] = []
         self.unflushed_bytes = 0
         self.closed = False
-        self._topic_yaml_cache: dict[str, str] = {}
+        #: Each topic's metadata.yaml entry but its count, rendered once (:meth:`metadata_text`).
+        self.topic_yaml: dict[str, str] = {}
         self.write_metadata()
 
     def add_topic(self, topic: str, type_name: str, qos_profiles: list[dict[str, Any]]) -> None:
@@ -249,6 +250,8 @@ class BagWriter:
         self.topics[topic] = {"name": topic, "type": type_name, "serialization_format": "cdr",
                               "offered_qos_profiles": qtext, "type_description_hash": thash}
         self.qos_lists[topic] = list(qos_profiles) if qtext else []
+        self.topic_yaml[topic] = _indented(yaml.dump([{"topic_metadata": self._topic_metadata(topic)}],
+                                                     Dumper=YAML_DUMPER, sort_keys=False))
         self.counts[topic] = 0
         self.flushed[topic] = 0
 
@@ -307,10 +310,14 @@ class BagWriter:
         """Close the bag, whether the block ended normally or by an exception (which propagates)."""
         self.close()
 
+    def _flushed_span(self) -> tuple[int, int, int]:
+        """(first, last log time, messages) of what is flushed."""
+        start, end = self.flushed_times if self.flushed_times else (0, 0)
+        return start, end, sum(self.flushed.values())
+
     def metadata_info(self) -> dict[str, Any]:
         """metadata.yaml's ``rosbag2_bagfile_information`` (version 9) for what is flushed."""
-        start, end = self.flushed_times if self.flushed_times else (0, 0)
-        total = sum(self.flushed.values())
+        start, end, total = self._flushed_span()
         return {
             **self._metadata_head(start, end, total),
             "topics_with_message_count": [
@@ -336,30 +343,20 @@ class BagWriter:
     def metadata_text(self) -> str:
         """The YAML text of :meth:`metadata_info` (under ``rosbag2_bagfile_information``).
 
-        Each topic's entry is rendered once, when it is first written, and only its message count
+        Each topic's entry is rendered once, when the topic is added, and only its message count
         each time: PyYAML represents a document in Python (libyaml only emits it), and the thirteen
         topics' QoS profiles took 1.8 of the 1.9 ms a rewrite cost, inside the recorder's flush,
         whose burst of CPU lengthened the lockstep steps it fell on by 3-5 ms (2 cores)."""
-        start, end = self.flushed_times if self.flushed_times else (0, 0)
-        total = sum(self.flushed.values())
+        start, end, total = self._flushed_span()
         head = yaml.dump({"rosbag2_bagfile_information": self._metadata_head(start, end, total)},
                          Dumper=YAML_DUMPER, sort_keys=False)
         if self.topics:
             topics = "  topics_with_message_count:\n" + "".join(
-                self._topic_yaml(t) + f"    message_count: {self.flushed[t]}\n" for t in self.topics)
+                self.topic_yaml[t] + f"    message_count: {self.flushed[t]}\n" for t in self.topics)
         else:
             topics = "  topics_with_message_count: []\n"
         tail = yaml.dump(self._metadata_tail(start, end, total), Dumper=YAML_DUMPER, sort_keys=False)
         return head + topics + _indented(tail)
-
-    def _topic_yaml(self, topic: str) -> str:
-        """A topic's entry of ``topics_with_message_count`` but its count, as nested there (cached)."""
-        text = self._topic_yaml_cache.get(topic)
-        if text is None:
-            text = _indented(yaml.dump([{"topic_metadata": self._topic_metadata(topic)}],
-                                       Dumper=YAML_DUMPER, sort_keys=False))
-            self._topic_yaml_cache[topic] = text
-        return text
 
     def write_metadata(self) -> None:
         """metadata.yaml for what is flushed (:meth:`metadata_text`), atomically."""
