@@ -129,7 +129,9 @@ def test_report_tables_only(campaign: Path, tmp_path: Path) -> None:
 def test_report_scenarios_index(campaign: Path, tmp_path: Path) -> None:
     """`cikan report ROOT --scenarios`: README.md with one row per governor of each campaign under
     ROOT, naming its scenario and side; dockings, violations, mean ΔV and ΔV against the
-    conventional TSG (mean, and the worst start) as the per-run files give them."""
+    conventional TSG (mean, and the worst start) and the speed-up of whole missions (each start's
+    active-update CPU, the conventional TSG's over the governor's: mean and worst) as the per-run
+    files give them."""
     assert main(["report", str(campaign.parent), "--scenarios", "--out", str(tmp_path)]) == 0
     page = (tmp_path / "README.md").read_text()
     rows = {line.split(" | ")[3]: line for line in page.splitlines() if line.startswith("| paper | behind | nominal | ")}
@@ -145,6 +147,9 @@ def test_report_scenarios_index(campaign: Path, tmp_path: Path) -> None:
     worst = max(a["delta_v_kmps"] / b["delta_v_kmps"] for a, b in zip(mine, conv))
     assert rows["cikan"].split(" | ")[9] == f"{mean_ratio - 1:+.1%} ({worst - 1:+.0%})"
     assert rows["conventional"].split(" | ")[9] == "-"
+    cpu = [[m["active_update_cpu_ms_mean"] * m["active_updates"] for m in runs] for runs in (conv, mine)]
+    speedups = [c / g for c, g in zip(*cpu)]
+    assert rows["cikan"].split(" | ")[11] == f"{np.mean(speedups):.2f} / {min(speedups):.2f}"
 
 
 def test_train_like_a_shipped_model(cfg, predictor, tmp_path: Path, capsys) -> None:
