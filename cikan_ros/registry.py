@@ -9,9 +9,11 @@ node) imports this module.
 
 from __future__ import annotations
 
+import json
+
 from .config import LEARNED_ALGORITHMS, Config
 from .governor import ConventionalGovernor, Governor
-from .learn.governor import load_learned_governor
+from .learn.governor import foreign_reason, load_learned_governor
 from .learn.modelfile import CARD, MODELS_DIR, scenario_model_dir
 from .tsg import Predictor
 
@@ -29,11 +31,26 @@ def campaign_names() -> list[str]:
     return names + [f"{n}-prev" for n in LEARNED_NAMES if (MODELS_DIR / f"{n}-prev").is_dir()]
 
 
+def shipped_models(cfg: Config) -> dict[str, str | None]:
+    """Every learned family with a model in the place of the configuration's scenario, approach
+    side and Verify mode (``scenario.models_dir``), and why that model was made for another
+    configuration (:func:`~cikan_ros.learn.governor.foreign_reason`; None: made for this one)."""
+    out: dict[str, str | None] = {}
+    for n in LEARNED_NAMES:
+        card = scenario_model_dir(cfg.scenario.models_dir, n, cfg.mission.approach, cfg.tsg.robust) / CARD
+        if card.is_file():
+            try:
+                out[n] = foreign_reason(json.loads(card.read_text()), cfg)
+            except (OSError, ValueError, KeyError, TypeError) as exc:   # flown, it is refused naming the file
+                out[n] = f"unreadable card {card}: {exc}"
+    return out
+
+
 def shipped_names(cfg: Config) -> list[str]:
-    """The conventional TSG and every learned family with a model for the configuration's
-    scenario, approach side and Verify mode (``scenario.models_dir``)."""
-    return ["conventional"] + [n for n in LEARNED_NAMES if (scenario_model_dir(
-        cfg.scenario.models_dir, n, cfg.mission.approach, cfg.tsg.robust) / CARD).is_file()]
+    """The conventional TSG and every learned family whose model in the configuration's place
+    (:func:`shipped_models`) was made for it, or any there with ``learned.foreign_model``."""
+    return ["conventional"] + [n for n, why in shipped_models(cfg).items()
+                               if why is None or cfg.learned.foreign_model]
 
 
 def split_rule(name: str) -> tuple[str, str | None]:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from ..strict_json import dumps
@@ -35,7 +36,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..analysis.corners import corner_rows, markdown_corner_table
     from ..errors import CikanError
-    from ..registry import campaign_names, shipped_names
+    from ..registry import campaign_names, shipped_models, shipped_names
     from ..montecarlo import markdown_summary, run_campaign, summarise
     from ..analysis.flown import flown_markdown, flown_rows, governors_text
     from ..progress import on_terminal
@@ -45,6 +46,11 @@ def run(args: argparse.Namespace) -> int:
         raise CikanError("--corners flies every corner: leave truth.draw random")
     governors = (campaign_names() if args.governor == "all" else shipped_names(cfg)
                  if args.governor == "shipped" else args.governor.split(","))
+    if args.governor == "shipped" and not cfg.learned.foreign_model:
+        for name, why in shipped_models(cfg).items():
+            if why is not None:   # a shipped model of another configuration: said, not flown
+                print(f"cikan montecarlo: shipped model {name} not flown: {why} "
+                      "(learned.foreign_model=true flies it)", file=sys.stderr)
     results = run_campaign(cfg, governors, args.runs, args.seed, args.out, args.workers, args.dask,
                            at_corners=args.corners, progress=on_terminal(args.json))
     summaries: dict = {g: summarise(runs) for g, runs in results.items()}

@@ -55,7 +55,7 @@ from __future__ import annotations
 import functools
 import math
 from pathlib import Path
-from typing import Callable, Iterable
+from typing import Any, Callable, Iterable
 
 import numba as nb
 import numpy as np
@@ -480,6 +480,22 @@ def train_target_args(cfg: Config) -> str:
     return scenario + side + " VERIFY=robust" + truth
 
 
+def foreign_reason(card: dict[str, Any], cfg: Config) -> str | None:
+    """Why a model (its card) was made for another configuration than ``cfg``: another scenario
+    or approach side, or labels of another Verify (:func:`~cikan_ros.learn.modelfile.label_mismatch`);
+    None when it was made for this one."""
+    trained = model_scenario(card)
+    wanted = {"name": cfg.scenario.name, "approach": cfg.mission.approach}
+    reasons = []
+    if trained != wanted:
+        reasons.append(f"trained for scenario {trained['name']!r}, approach {trained['approach']!r}, not "
+                       f"scenario {wanted['name']!r}, approach {wanted['approach']!r}")
+    labels = label_mismatch(card, cfg.flat())
+    if labels is not None:
+        reasons.append(labels)
+    return "; ".join(reasons) or None
+
+
 def load_learned_governor(name: str, predictor: Predictor) -> LearnedGovernor:
     """The learned governor of a shipped family (``cikan``, ``grbf``, ``rswaf``, ``relu``,
     ``gelu``: the scenario's model for the approach side and Verify mode,
@@ -502,16 +518,7 @@ def load_learned_governor(name: str, predictor: Predictor) -> LearnedGovernor:
         model = load_model(where)
     else:
         model = load_model(name)
-    trained = model_scenario(model.card)
-    wanted = {"name": cfg.scenario.name, "approach": cfg.mission.approach}
-    reasons = []
-    if trained != wanted:
-        reasons.append(f"trained for scenario {trained['name']!r}, approach {trained['approach']!r}, not "
-                       f"scenario {wanted['name']!r}, approach {wanted['approach']!r}")
-    labels = label_mismatch(model.card, cfg.flat())
-    if labels is not None:
-        reasons.append(labels)
-    foreign = "; ".join(reasons) or None
+    foreign = foreign_reason(model.card, cfg)
     if foreign is not None and not cfg.learned.foreign_model:
         raise ModelFileError(f"model {model.path} was {foreign}: set learned.foreign_model=true to fly it anyway")
     label = name if family else f"{model.arch.family}:{Path(model.path).name}"
