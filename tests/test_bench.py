@@ -154,6 +154,22 @@ def test_realistic_robust_learned_section(realistic, tmp_path):
         bench_index(tmp_path)
 
 
+def test_a_bench_whose_models_were_all_refused_is_a_row_of_the_index(tmp_path):
+    """A `cikan bench --json` file where every shipped model was refused (GEO under the ancillary
+    tube: its robust models are of the ball tube's labels): the speed table says so in one row,
+    with the conventional TSG's calls and update time, instead of leaving the world out."""
+    from cikan_ros.analysis.table import bench_index
+
+    (tmp_path / "geo-behind-robust.json").write_text(json.dumps({
+        "robust": True, "truth": "realistic", "conventional_verify_calls_mean": 14.25,
+        "conventional_update_ms_mean": 16.6354,
+        "learned_models_missing": ["cikan: model models/geo/cikan-robust was trained on labels of ...",
+                                   "relu: model models/geo/relu-robust was trained on labels of ..."]}))
+    (row,) = bench_index(tmp_path).splitlines()[2:]
+    assert row == ("| geo | behind | robust (realistic) | - | no model flown (refused: cikan, relu) | - (14.25) "
+                   "| - | - | - | 16.635 |")
+
+
 def test_a_configuration_that_refuses_every_start_is_reported_not_failed(tmp_path):
     """Robust Verify flying the paper orbit's controller weight (R = 1e7) refuses LEO's starts from
     behind in the realistic truth (docs/results/scenarios/leo-behind/controller_sweep.md: 38 of 40):

@@ -381,9 +381,13 @@ def bench_index(root: str | Path) -> str:
                          "| - | - | - | - | - |")
             continue
         foreign = b.get("learned_foreign_models") or {}
-        for m in LEARNED_NAMES:
-            if f"{m}_speedup_mean" not in b:
-                continue
+        flown = [m for m in LEARNED_NAMES if f"{m}_speedup_mean" in b]
+        if not flown:   # every model refused (none made for this Verify): said, with the conventional TSG's cost
+            refused = ", ".join(m.split(":", 1)[0] for m in b.get("learned_models_missing") or []) or "none shipped"
+            lines.append(f"| {scenario} | {side} | {verify} | - | no model flown (refused: {refused}) "
+                         f"| - ({_fmt(b.get('conventional_verify_calls_mean'), '.2f')}) | - | - | - "
+                         f"| {_fmt(b.get('conventional_update_ms_mean'), '.3f')} |")
+        for m in flown:
             lines.append(
                 f"| {scenario} | {side} | {verify} | {m}{' (foreign)' if m in foreign else ''} "
                 f"| {_fmt(b.get(f'{m}_mission_speedup_mean'), '.2f')} / {_fmt(b.get(f'{m}_mission_speedup_worst'), '.2f')} "
