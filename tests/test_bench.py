@@ -111,6 +111,8 @@ def test_realistic_robust_learned_section(realistic, tmp_path):
     own = learned_section(cfg, states, 1)
     assert len(own["learned_models_missing"]) == len(LEARNED_NAMES) - len(robust)
     assert all("no " in m and "model of robust Verify" in m for m in own["learned_models_missing"])
+    # ... naming the place looked in relative to the project (the files go into docs/results)
+    assert all("(looked in models/" in m and str(MODELS_DIR.parent) not in m for m in own["learned_models_missing"])
     assert "learned_foreign_models" not in own
     assert all(math.isfinite(own[f"{n}_mission_speedup_mean"]) for n in robust)
     # ... unless explicitly allowed: then they fly their nominal models, each named foreign

@@ -44,6 +44,7 @@ conventional TSG and in the same run, under the default update rule (``learned.a
 from __future__ import annotations
 
 import json
+import os
 import statistics
 import time
 from typing import Any
@@ -57,6 +58,7 @@ from ..registry import LEARNED_NAMES
 from ..timing import BenchStates, median_thread_time, timed_update
 from ..tsg import Predictor
 from .errors import ModelFileError
+from .modelfile import MODELS_DIR
 
 _PREDICTOR: dict[str, Predictor] = {}
 #: Paths that answer without any bisection.
@@ -151,7 +153,8 @@ def learned_section(cfg: Config, states: BenchStates, repeats: int) -> dict[str,
             govs.append(load_learned_governor(name, pred))
             govs_other.append(load_learned_governor(name, pred_other))
         except ModelFileError as exc:
-            missing.append(f"{name}: {exc}")
+            # relative to the project (the JSON goes into docs/results: no machine paths)
+            missing.append(f"{name}: {exc}".replace(f"{MODELS_DIR.parent}{os.sep}", ""))
             continue
         if govs[-1].foreign:   # flown with learned.foreign_model: what it was made for, in the report
             out.setdefault("learned_foreign_models", {})[name] = govs[-1].foreign
