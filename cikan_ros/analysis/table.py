@@ -176,8 +176,8 @@ def build_table(mc_dir: str | Path, with_rmse: bool = True) -> list[dict[str, An
             if len(paired) >= 2:
                 row["delta_v_vs_conventional_se"] = paired_ratio(*zip(*paired)).se
             # whole missions: the conventional TSG's active CPU from the same start over this one's
-            ratios = [conv_cpu[int(m["seed"])] / active_cpu_ms(m) for m, _, _ in runs
-                      if int(m["seed"]) in conv_cpu and active_cpu_ms(m) > 0 and conv_cpu[int(m["seed"])] > 0]
+            mine = ((conv_cpu.get(int(m["seed"]), 0.0), active_cpu_ms(m)) for m, _, _ in runs)
+            ratios = [c / g for c, g in mine if c > 0 and g > 0]
             if ratios:
                 row["mission_speedup_mean"] = float(np.mean(ratios))
                 row["mission_speedup_worst"] = float(min(ratios))
