@@ -476,6 +476,9 @@ def handoff_control_config(cfg: "Config") -> ControlConfig:
 #: Update rules of learned governors: the default ("keep", SPEC §8 beyond the paper) and the
 #: paper's Algorithm 1 ("paper").
 LEARNED_ALGORITHMS = ("keep", "paper")
+#: How the keep rule answers robust Verify's tail (|tau_prev| <= learned.robust_tail_s): the
+#: conventional TSG's search, or a search around the last progress (docs/learned_update_rule.md).
+TAIL_RULES = ("gallop", "search")
 
 
 @dataclass(frozen=True)
@@ -495,6 +498,9 @@ class LearnedConfig:
     stall_updates: int = 10
     stall_judge: str = "progress"
     robust_tail_s: float = 0.1
+    tail_rule: str = "gallop"
+    tail_growth: float = 1.5
+    tail_budget: int = 5
     trust_at_start: str = "network"
     foreign_model: bool = False
 
@@ -528,6 +534,11 @@ class LearnedConfig:
                "must be an integer in [0, 1000] (0: never search after a stall)")
         _check(math.isfinite(self.robust_tail_s) and self.robust_tail_s >= 0.0, "learned.robust_tail_s",
                self.robust_tail_s, "must be a finite number of seconds >= 0 (0: no handover)")
+        _check(self.tail_rule in TAIL_RULES, "learned.tail_rule", self.tail_rule, f"must be one of {TAIL_RULES}")
+        _check(math.isfinite(self.tail_growth) and self.tail_growth > 1.0, "learned.tail_growth",
+               self.tail_growth, "must be a number > 1")
+        _check(isinstance(self.tail_budget, int) and 1 <= self.tail_budget <= 64, "learned.tail_budget",
+               self.tail_budget, "must be an integer in [1, 64]")
         _check(self.stall_judge in ("progress", "audit"), "learned.stall_judge", self.stall_judge,
                "must be 'progress' (any progress a stall search finds is a miss) or 'audit' "
                "(only progress beyond audit_step)")

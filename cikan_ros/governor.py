@@ -33,6 +33,7 @@ PATH_SEARCH = "search"          # keep rule, network not trusted: the convention
 PATH_AUDIT = "audit"            # keep rule: the scheduled audit found the answer lagging and took the audited shift
 PATH_STALL = "stall"            # keep rule: tau held for learned.stall_updates updates; the conventional TSG's pi*
 PATH_TAIL = "tail"              # keep rule, robust Verify, |tau_prev| <= learned.robust_tail_s: the conventional TSG's pi*
+PATH_GALLOP = "gallop"          # keep rule, robust Verify's tail: a search around the last update's progress (learned.tail_rule)
 
 
 Clock = tuple[float, float]
@@ -156,6 +157,7 @@ def warm_up(governor: Governor, x_d: ArrayLike, x_c: ArrayLike, t: float = 0.0) 
     pred.verify(x_d, t1, tau0)
     pred.bisect(x_d, t1, tau0, 0.0, budget=1)
     pred.first_feasible(x_d, t1, [0.0], tau0, 1)
+    pred.gallop(x_d, t1, tau0, 0.5, 2.0, 1)
     pred.optimal_shift(x_d, t1, tau0)
     governor.update(x_d, x_c, t1, tau0)
     # The warm-up's anchoring is part of no mission: x_c is not the chief at t1, so the update

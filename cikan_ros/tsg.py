@@ -365,6 +365,49 @@ def first_feasible_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray
     return tau, -1, n + calls
 
 
+@nb.njit(cache=True, error_model="numpy", inline="always")
+def _progress_shift_ns(tau_prev_ns: int, q: float) -> int:
+    """The shift a fraction q of the way from tau_prev to 0 (q = 1: 0), on the nanosecond grid."""
+    return int(round(tau_prev_ns * (1.0 - q))) if q < 1.0 else 0
+
+
+@nb.njit(cache=True, error_model="numpy")
+def gallop_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: NDArray, x0: NDArray,
+                  t_k: float, tau_prev_ns: int, q0: float, growth: float, budget: int, tol_ns: int,
+                  chief: NDArray, chief_t0: float) -> tuple[int, float, float, int]:
+    """Search for progress of about q0 (a fraction of |tau_prev| toward 0) with at most ``budget``
+    Verify calls: candidates tau_prev (1 - q). From q0, up (q growth^i, capped at 1: 0 itself)
+    while they pass, or down (q0 / growth^i) until one passes; then the bracket [largest q that
+    passed, smallest that failed] is split at its geometric mean while calls remain. A step
+    smaller than ``tol_ns`` is not tried.
+
+    Returns (tau_ns, q of the answer (0: none passed, tau_ns = tau_prev_ns), the smallest q that
+    failed (inf: none), Verify calls). Every answer but tau_prev passed Verify."""
+    best = c_fail = tau_prev_ns
+    q_pass = 0.0
+    q_fail = math.inf
+    calls = 0
+    q = min(q0, 1.0)
+    while calls < budget:
+        c = _progress_shift_ns(tau_prev_ns, q)
+        if abs(tau_prev_ns - c) < tol_ns or c == best or c == c_fail:
+            break
+        calls += 1
+        if verify_kernel(orb, table, cp, tp, rp, x0, t_k, c / 1e9, chief, chief_t0):
+            best, q_pass = c, q
+        else:
+            q_fail, c_fail = q, c
+        if q_fail == math.inf:  # nothing failed yet: up, to 0 at most
+            if q >= 1.0:
+                break
+            q = min(q * growth, 1.0)
+        elif q_pass == 0.0:  # nothing passed yet: down
+            q = q / growth
+        else:  # bracketed
+            q = math.sqrt(q_pass * q_fail)
+    return best, q_pass, q_fail, calls
+
+
 @nb.njit(cache=True, error_model="numpy")
 def conventional_update_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: NDArray, x0: NDArray,
                                t_k: float, tau_prev_ns: int, tol_ns: int, chief: NDArray,
@@ -663,6 +706,23 @@ class Predictor:
                                             self._rp(x, t), x, t, to_ns(lo), to_ns(hi), self.tol_ns, c.rows, c.t0,
                                             -1 if budget is None else int(budget))
         return ns_to_seconds(lo_ns), ns_to_seconds(hi_ns), int(calls)
+
+    def gallop(self, x_d: ArrayLike, t: float, tau_prev: float, q0: float, growth: float, budget: int,
+               cache: ChiefCache | None = None) -> tuple[float, float, float, int]:
+        """Progress of about ``q0`` of |tau_prev| toward 0, searched with at most ``budget`` Verify
+        calls (:func:`gallop_kernel`): (tau, q of the answer (0: tau_prev held), smallest q that
+        failed (inf: none), calls)."""
+        x, t = self._state(x_d, t)
+        tau_prev = self._shift(tau_prev, "tau_prev")
+        if not (0.0 < q0 and growth > 1.0 and budget >= 0):
+            raise ValueError(f"gallop needs q0 > 0, growth > 1 and budget >= 0, got {q0}, {growth}, {budget}")
+        if tau_prev == 0.0:
+            return 0.0, 0.0, math.inf, 0
+        c = self._cache(t, cache)
+        tau, q, q_fail, calls = gallop_kernel(self.orbit.params, self.gains, self.cparams, self.tparams,
+                                              self._rp(x, t), x, t, to_ns(tau_prev), float(q0), float(growth),
+                                              int(budget), self.tol_ns, c.rows, c.t0)
+        return ns_to_seconds(tau), float(q), float(q_fail), int(calls)
 
     def optimal_shift(self, x_d: ArrayLike, t: float, tau_prev: float) -> tuple[float, int]:
         """pi*(x_d, t) between tau_prev and 0: (tau, Verify calls). tau_prev = 0 gives 0 with no prediction."""

@@ -227,7 +227,8 @@ def _robust_updates() -> tuple:
 
 @pytest.mark.parametrize("tail_s", [0.1, 0.0])
 def test_the_robust_tail_is_the_conventional_search(predictor: Predictor, tail_s: float) -> None:
-    """Under robust Verify an update with |τ_prev| <= learned.robust_tail_s is the conventional
+    """With ``learned.tail_rule: search``, under robust Verify an update with |τ_prev| <=
+    learned.robust_tail_s is the conventional
     TSG's π* on the anchored chief (path "tail"), scheduled or not, whatever the network proposes
     (here 1 µs: every proposal too aggressive) and however trusted; with 0 the keep rule decides
     there; under nominal Verify never."""
@@ -235,7 +236,7 @@ def test_the_robust_tail_is_the_conventional_search(predictor: Predictor, tail_s
     from cikan_ros.governor import PATH_TAIL
 
     cfg = load_config(None, **truth_overrides("realistic"),
-                      **{"tsg.robust": True, "learned.robust_tail_s": tail_s})
+                      **{"tsg.robust": True, "learned.robust_tail_s": tail_s, "learned.tail_rule": "search"})
     pred = Predictor.from_config(cfg)
     tail = [s for s in _robust_updates() if 0.0 < abs(s.tau_prev) <= 0.1]
     assert len(tail) >= 4 and {s.k % cfg.learned.probe_every == 0 for s in tail} == {True, False}
@@ -249,3 +250,80 @@ def test_the_robust_tail_is_the_conventional_search(predictor: Predictor, tail_s
         else:
             assert rec.path != PATH_TAIL
     assert not _constant(predictor, 1e-6)._robust_tail(predictor, -0.05)   # nominal Verify
+
+
+def test_the_robust_tail_gallops_from_the_last_progress() -> None:
+    """``learned.tail_rule: gallop`` (the default): in robust Verify's tail the first update
+    with no progress known is the conventional search [tail]; after a move, each update searches
+    around the last progress q (Predictor.gallop with q, tail_growth, tail_budget on the anchored
+    chief) [gallop], its answer that gallop's followed by the zero test, and q becomes the
+    update's own progress 1 - τ/τ_prev; TAIL_MISSES gallops in a row without progress hand the
+    next update to the conventional search again."""
+    from cikan_ros.config import truth_overrides
+    from cikan_ros.governor import PATH_GALLOP, PATH_TAIL, PATH_VERIFY_ZERO
+    from cikan_ros.learn.governor import TAIL_MISSES
+
+    cfg = load_config(None, **truth_overrides("realistic"), **{"tsg.robust": True})
+    assert cfg.learned.tail_rule == "gallop"
+    lc = cfg.learned
+    pred = Predictor.from_config(cfg)
+    tail = [s for s in _robust_updates() if 0.0 < abs(s.tau_prev) <= lc.robust_tail_s]
+    gov = _constant(pred, 1e-6)
+    paths = []
+    for i, s in enumerate(tail[:8]):
+        q = gov._progress
+        rec = gov.update(s.x_d, s.x_c, s.t, s.tau_prev)
+        paths.append(rec.path)
+        anchored = gov.anchor(s.x_c, s.t)
+        if i == 0:
+            star, calls = anchored.optimal_shift(s.x_d, s.t, s.tau_prev)
+            assert (rec.path, rec.tau_s, rec.verify_calls) == (PATH_TAIL, star, calls)
+        elif rec.path != PATH_TAIL:
+            tau, q_got, q_fail, calls = anchored.gallop(s.x_d, s.t, s.tau_prev, q, lc.tail_growth, lc.tail_budget)
+            assert calls <= lc.tail_budget
+            if rec.path == PATH_GALLOP:
+                # the zero test (|τ| <= zero_snap_s) failed, or none; none either when the
+                # gallop's own candidate 0 failed (q_fail = 1)
+                zero_test = 0.0 < abs(tau) <= cfg.tsg.zero_snap_s and q_fail != 1.0
+                assert (rec.tau_s, rec.verify_calls) == (tau, calls + zero_test)
+            else:                                                       # it passed
+                assert rec.path == PATH_VERIFY_ZERO and rec.tau_s == 0.0 and rec.verify_calls == calls + 1
+                assert abs(tau) <= cfg.tsg.zero_snap_s
+        if rec.tau_s != s.tau_prev:
+            assert gov._progress == pytest.approx(1.0 - rec.tau_s / s.tau_prev, rel=0, abs=1e-15)
+    assert PATH_GALLOP in paths
+    # A gallop that cannot move (its q far below the tolerance's step) counts as a miss.
+    s = tail[1]
+    gov._progress, gov._tail_misses = 1e-9, 0
+    for _ in range(TAIL_MISSES):
+        assert gov.update(s.x_d, s.x_c, s.t, s.tau_prev).path == PATH_GALLOP
+    assert gov.update(s.x_d, s.x_c, s.t, s.tau_prev).path == PATH_TAIL
+
+
+@pytest.mark.parametrize("growth", [2.0, 4.0])
+def test_the_gallop_skips_only_a_zero_test_it_made_itself(growth: float) -> None:
+    """A gallop whose own candidate 0 failed skips the keep rule's zero test (the same Verify,
+    the same answer); every other gallop answer near 0 gets it. So a whole robust mission flies
+    the same τ history as with the zero test after every gallop. With tail_growth 4 the gallop
+    reaches 0 itself from a progress of 1/4 (fewer Verify calls); with 2 (budget 3) start 1010 has a gallop
+    that spent its budget at 0.75 of the way with 0 untried, whose zero test passes (a flag that
+    took "nothing failed" for "0 failed" skipped it and changed the mission)."""
+    from cikan_ros.config import truth_overrides
+    from cikan_ros.governor import PATH_GALLOP
+    from cikan_ros.learn.governor import load_learned_governor
+
+    cfg = load_config(None, **truth_overrides("realistic"),
+                      **{"tsg.robust": True, "learned.tail_growth": growth, "learned.tail_budget": 3})
+    pred = Predictor.from_config(cfg)
+    runs = []
+    for always in (False, True):
+        gov = load_learned_governor("cikan", pred)   # the paper orbit's robust CIKAN
+        if always:
+            tail = gov._tail
+            gov._tail = lambda *a: (lambda r: (setattr(gov, "_zero_failed", False), r)[1])(tail(*a))
+        runs.append(run_mission(gov, sample_start(pred, 1010), 1010))
+    skipped, forced = runs
+    assert np.array_equal(skipped.tau, forced.tau)
+    calls = [sum(u.verify_calls for u in r.updates) for r in runs]
+    assert calls[0] < calls[1] if growth == 4.0 else calls[0] == calls[1]
+    assert any(u.path == PATH_GALLOP for u in skipped.updates)

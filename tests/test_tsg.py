@@ -165,3 +165,51 @@ def test_bad_states_are_rejected(predictor, bad_x, match):
 def test_bad_shifts_are_rejected(predictor, tau):
     with pytest.raises(StateError, match="tau_prev"):
         predictor.optimal_shift(nominal_start(predictor), 0.0, tau)
+
+
+def _gallop_reference(pred: Predictor, x_d, t: float, tau_prev: float, q0: float, growth: float,
+                      budget: int) -> tuple[float, float, int]:
+    """The gallop's search order in plain Python over Predictor.verify (docs/learned_update_rule.md):
+    up by growth from q0 while candidates pass (0 at most), down until one passes, then the
+    geometric mean of the bracket; a step below the tolerance or a repeat ends it."""
+    prev_ns = round(tau_prev * 1e9)
+    best = fail_c = prev_ns
+    q_pass, q_fail, calls, q = 0.0, float("inf"), 0, min(q0, 1.0)
+    tol_ns = round(pred.config.tsg.tolerance_s * 1e9)
+    while calls < budget:
+        c = round(prev_ns * (1.0 - q)) if q < 1.0 else 0
+        if abs(prev_ns - c) < tol_ns or c in (best, fail_c):
+            break
+        calls += 1
+        if pred.verify(x_d, t, c / 1e9):
+            best, q_pass = c, q
+        else:
+            q_fail, fail_c = q, c
+        if q_fail == float("inf"):
+            if q >= 1.0:
+                break
+            q = min(q * growth, 1.0)
+        elif q_pass == 0.0:
+            q = q / growth
+        else:
+            q = (q_pass * q_fail) ** 0.5
+    return best / 1e9, q_pass, calls
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(i=st.integers(0, 10_000), q0=st.floats(1e-4, 1.5), growth=st.floats(1.05, 4.0), budget=st.integers(0, 6))
+def test_gallop_answers_a_verified_progress_within_its_budget(predictor, i, q0, growth, budget):
+    """Predictor.gallop on active update states of a mission: the answer is tau_prev or a shift
+    that passes Verify, between tau_prev and 0, on the nanosecond grid, a fraction q of the way;
+    at most ``budget`` calls; the same answer and calls as the plain-Python reference above."""
+    x_d, t, tau_prev = _update_state(_mission(1), i)
+    tau, q, q_fail, calls = predictor.gallop(x_d, t, tau_prev, q0, growth, budget)
+    assert calls <= budget
+    assert (tau, q, calls) == _gallop_reference(predictor, x_d, t, tau_prev, q0, growth, budget)
+    assert tau * 1e9 == round(tau * 1e9)
+    if q > 0.0:
+        assert predictor.verify(x_d, t, tau)
+        assert abs(tau) < abs(tau_prev) and tau * tau_prev >= 0.0
+        assert q_fail > q
+    else:
+        assert tau == tau_prev

@@ -25,9 +25,11 @@ The trust (:class:`Trust`) and the stall rule wrap this: an untrusted network's 
 conventional TSG's (path "search"), and after learned.stall_updates trusted updates in a row
 that held τ_prev the next one is too (path "stall"); the audit checks the answer and judges the
 network (path "audit"; docs/learned_update_rule.md). Under robust Verify every update with
-|τ_prev| <= learned.robust_tail_s is the conventional search (path "tail", before the trust), and
+|τ_prev| <= learned.robust_tail_s is answered before the trust, by a search around the last
+update's progress (path "gallop", ``learned.tail_rule``) or the conventional one (path "tail"), and
 a scheduled update with |τ_prev| <= tsg.zero_snap_s probes with it, before the ladder. In the code
-(:meth:`LearnedGovernor._keep`) the steps are one method each, in this order: ``_robust_tail``,
+(:meth:`LearnedGovernor._keep`) the steps are one method each, in this order: ``_robust_tail``
+(then ``_tail``),
 ``_search`` (the trust), ``_stall``, ``_last_approach``, ``_ladder_step``, ``_probe``,
 ``_audit``, ``_judge``.
 
@@ -62,7 +64,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..config import Config, Side, scenario_names, truth_names
-from ..governor import (PATH_AUDIT, PATH_BISECT, PATH_INITIAL, PATH_KEEP, PATH_NN, PATH_NN_BISECT, PATH_PROBE,
+from ..governor import (PATH_AUDIT, PATH_BISECT, PATH_GALLOP, PATH_INITIAL, PATH_KEEP, PATH_NN, PATH_NN_BISECT, PATH_PROBE,
                         PATH_SEARCH, PATH_STALL, PATH_TAIL, PATH_VERIFY_ZERO, PATH_ZERO, UpdateRecord,
                         initial_update, make_record, start_clock, update_index)
 from ..tsg import ChiefAnchor, ChiefCache, Predictor, quantise_shift
@@ -76,6 +78,9 @@ from .modelfile import CARD, LoadedModel, flown_model_dir, label_mismatch, load_
 MAX_LOG_SHIFT = 40.0
 #: The stall rule waits at most this many times learned.stall_updates holds between searches.
 STALL_BACKOFF = 8
+#: Gallop updates in a row that found no progress after which robust Verify's tail searches like
+#: the conventional TSG (learned.tail_rule "gallop").
+TAIL_MISSES = 2
 #: Paths answered by the conventional TSG's search (its own zero test included).
 SEARCHED = (PATH_SEARCH, PATH_STALL, PATH_TAIL)
 
@@ -211,6 +216,11 @@ class LearnedGovernor:
         self._code = FEATURE_CODES[net.arch.features]
         self._rungs = np.array(lc.ladder, dtype=np.float64)
         self._cands_ns = np.empty(len(lc.ladder), dtype=np.int64)
+        #: The last progress, 1 - τ_k / τ_{k-1} of the last update that moved τ (NaN: none yet),
+        #: and the tail's gallops in a row that found none (:meth:`_tail`).
+        self._progress = math.nan
+        self._tail_misses = 0
+        self._zero_failed = False  # this update's gallop verified 0 itself, and it failed
 
     @classmethod
     def from_model(cls, model: LoadedModel, predictor: Predictor, name: str | None = None
@@ -238,6 +248,7 @@ class LearnedGovernor:
 
     def initial(self, x_d: ArrayLike, x_c: ArrayLike, t: float) -> UpdateRecord:
         self.trust.reset()
+        self._progress, self._tail_misses = math.nan, 0
         return initial_update(self.anchor, x_d, x_c, t)
 
     def update(self, x_d: ArrayLike, x_c: ArrayLike, t: float, tau_prev: float) -> UpdateRecord:
@@ -253,11 +264,14 @@ class LearnedGovernor:
             tau, path, calls, cache = self._paper(pred, x_d, t, tau_prev, propose())
         else:
             tau, path, calls, cache = self._keep(pred, x_d, t, tau_prev, propose, k)
-        if path not in SEARCHED and tau != 0.0 and abs(tau) <= pred.config.tsg.zero_snap_s:
+        if (path not in SEARCHED and tau != 0.0 and abs(tau) <= pred.config.tsg.zero_snap_s
+                and not (path == PATH_GALLOP and self._zero_failed)):  # the gallop's own candidate 0 failed
             calls += 1
             if pred.verify(x_d, t, 0.0, cache or pred.cache(t)):
                 tau, path = 0.0, PATH_VERIFY_ZERO
         self.trust.after_update(tau != tau_prev, path in SEARCHED)
+        if tau != tau_prev:
+            self._progress = 1.0 - tau / tau_prev
         return make_record(started, tau, path, calls, k, tau_prev)
 
     @staticmethod
@@ -283,8 +297,7 @@ class LearnedGovernor:
         probe, audit, and the judgement of the update by the trust. The network runs only when a
         step needs its proposal (``propose``)."""
         if self._robust_tail(pred, tau_prev):
-            tau, calls = pred.optimal_shift(x_d, t, tau_prev)
-            return tau, PATH_TAIL, calls, None
+            return self._tail(pred, x_d, t, tau_prev)
         trust = self.trust
         if trust.searching:
             return self._search(pred, x_d, t, tau_prev, propose)
@@ -342,6 +355,34 @@ class LearnedGovernor:
         reach the terminal set within a few samples (docs/learned_update_rule.md, "Under robust
         Verify")."""
         return pred.robust and abs(tau_prev) <= pred.config.learned.robust_tail_s
+
+    def _tail(self, pred: Predictor, x_d: ArrayLike, t: float, tau_prev: float
+              ) -> tuple[float, str, int, ChiefCache | None]:
+        """Robust Verify's tail (:meth:`_robust_tail`). ``learned.tail_rule`` "gallop": the
+        shift about the last update's progress q of the way to 0, τ_prev (1 - q), searched up or
+        down by ``tail_growth`` and bracketed with at most ``tail_budget`` Verify calls
+        (:meth:`Predictor.gallop`) [gallop]; none passing, τ_prev is held and the next gallop
+        starts below the smallest q that failed. In the tail π* moves by a steady fraction of
+        |τ| per update (0.5-0.6 from 0.1 s to 2 ms on the paper's orbit, then 0.15-0.2), where
+        the conventional search spends log2(|τ_prev| / tol) calls to find it. The conventional
+        search [tail] instead: with "search", before any progress is known (a mission's or a
+        restarted node's first moves), and after TAIL_MISSES gallops in a row found none (so
+        a shrinking progress cannot hold τ for good)."""
+        lc = pred.config.learned
+        if lc.tail_rule == "search" or not self._progress > 0.0 or self._tail_misses >= TAIL_MISSES:
+            self._tail_misses = 0
+            tau, calls = pred.optimal_shift(x_d, t, tau_prev)
+            return tau, PATH_TAIL, calls, None
+        cache = pred.cache(t)
+        tau, q, q_fail, calls = pred.gallop(x_d, t, tau_prev, self._progress, lc.tail_growth, lc.tail_budget, cache)
+        self._zero_failed = q_fail == 1.0   # inf: nothing failed
+        if q > 0.0:
+            self._tail_misses = 0
+        else:
+            self._tail_misses += 1
+            if math.isfinite(q_fail):
+                self._progress = q_fail / lc.tail_growth
+        return tau, PATH_GALLOP, calls, cache
 
     @staticmethod
     def _last_approach(pred: Predictor, tau_prev: float) -> bool:
