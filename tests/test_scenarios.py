@@ -257,17 +257,20 @@ def test_robust_verify_flies_its_own_models(tmp_path: Path) -> None:
         make_governor("cikan", ball)
     foreign = make_governor("cikan", ball.replace(**{"learned.foreign_model": True})).foreign
     assert foreign.endswith("tsg.ancillary_r_diag, tsg.tube)"), foreign
-    # GEO's shipped robust models are of the ball tube's labels; GEO flies the ancillary tube:
-    # `--governor shipped` leaves them out, saying why, unless foreign models are allowed.
+    # GEO's shipped robust models from behind are of the ancillary tube's labels, which GEO flies:
+    # `--governor shipped` lists them; under the ball tube they are another Verify's, left out
+    # saying why, unless foreign models are allowed.
     from cikan_ros.registry import shipped_models
     geo = load_config(**{**scenario_overrides("geo"), **truth_overrides("realistic"), "tsg.robust": True})
     assert geo.tsg.tube == "ancillary"
-    why = shipped_models(geo)
+    assert shipped_models(geo) == {"cikan": None, "relu": None}
+    assert shipped_names(geo) == ["conventional", "cikan", "relu"]
+    geo_ball = geo.replace(**{"tsg.tube": "ball"})
+    why = shipped_models(geo_ball)
     assert sorted(why) == ["cikan", "relu"] and all(r.startswith("trained on labels of robust Verify") and
                                                     "tsg.tube" in r for r in why.values()), why
-    assert shipped_names(geo) == ["conventional"]
-    assert shipped_names(geo.replace(**{"learned.foreign_model": True})) == ["conventional", "cikan", "relu"]
-    assert shipped_models(geo.replace(**{"tsg.tube": "ball"})) == {"cikan": None, "relu": None}
+    assert shipped_names(geo_ball) == ["conventional"]
+    assert shipped_names(geo_ball.replace(**{"learned.foreign_model": True})) == ["conventional", "cikan", "relu"]
     card = json.loads((MODELS_DIR / "cikan-robust" / "card.json").read_text())
     card["config"] = {**card["config"], "tsg.tube": "ball"}
     assert label_mismatch(card, shipped.flat()).endswith("tsg.ancillary_r_diag, tsg.tube)")
