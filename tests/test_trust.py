@@ -292,8 +292,13 @@ def test_the_robust_tail_gallops_from_the_last_progress() -> None:
         if rec.tau_s != s.tau_prev:
             assert gov._progress == pytest.approx(1.0 - rec.tau_s / s.tau_prev, rel=0, abs=1e-15)
     assert PATH_GALLOP in paths
-    # A gallop that cannot move (its q far below the tolerance's step) counts as a miss.
+    # A last progress below learned.tail_min_progress (a creeping tail): the conventional search.
     s = tail[1]
+    gov._progress, gov._tail_misses = 0.99 * lc.tail_min_progress, 0
+    assert gov.update(s.x_d, s.x_c, s.t, s.tau_prev).path == PATH_TAIL
+    # Without that floor, a gallop that cannot move (its q far below the tolerance's step) counts
+    # as a miss, and TAIL_MISSES of them hand the next update to the conventional search.
+    gov = _constant(Predictor.from_config(cfg.replace(**{"learned.tail_min_progress": 0.0})), 1e-6)
     gov._progress, gov._tail_misses = 1e-9, 0
     for _ in range(TAIL_MISSES):
         assert gov.update(s.x_d, s.x_c, s.t, s.tau_prev).path == PATH_GALLOP

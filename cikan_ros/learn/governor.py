@@ -296,14 +296,14 @@ class LearnedGovernor:
         untrusted network's update is the conventional TSG's), stall, last approach, ladder,
         probe, audit, and the judgement of the update by the trust. The network runs only when a
         step needs its proposal (``propose``)."""
+        scheduled = k % pred.config.learned.probe_every == 0
         if self._robust_tail(pred, tau_prev):
-            return self._tail(pred, x_d, t, tau_prev)
+            return self._tail(pred, x_d, t, tau_prev, scheduled)
         trust = self.trust
         if trust.searching:
             return self._search(pred, x_d, t, tau_prev, propose)
         if trust.stall_due():
             return self._stall(pred, x_d, t, tau_prev)
-        scheduled = k % pred.config.learned.probe_every == 0
         if scheduled and self._last_approach(pred, tau_prev):
             tau, calls = pred.optimal_shift(x_d, t, tau_prev)
             return tau, PATH_PROBE, calls, None
@@ -356,7 +356,7 @@ class LearnedGovernor:
         Verify")."""
         return pred.robust and abs(tau_prev) <= pred.config.learned.robust_tail_s
 
-    def _tail(self, pred: Predictor, x_d: ArrayLike, t: float, tau_prev: float
+    def _tail(self, pred: Predictor, x_d: ArrayLike, t: float, tau_prev: float, scheduled: bool = False
               ) -> tuple[float, str, int, ChiefCache | None]:
         """Robust Verify's tail (:meth:`_robust_tail`). ``learned.tail_rule`` "gallop": the
         shift about the last update's progress q of the way to 0, τ_prev (1 - q), searched up or
@@ -366,10 +366,14 @@ class LearnedGovernor:
         |τ| per update (0.5-0.6 from 0.1 s to 2 ms on the paper's orbit, then 0.15-0.2), where
         the conventional search spends log2(|τ_prev| / tol) calls to find it. The conventional
         search [tail] instead: with "search", before any progress is known (a mission's or a
-        restarted node's first moves), and after TAIL_MISSES gallops in a row found none (so
-        a shrinking progress cannot hold τ for good)."""
+        restarted node's first moves), when the last progress is below
+        ``learned.tail_min_progress`` (a tail that creeps ~1 % an update and now and then jumps,
+        as under the paper's controller, where a gallop from the creep misses the jumps), and
+        after TAIL_MISSES gallops in a row found none (so a shrinking progress cannot hold τ for
+        good)."""
         lc = pred.config.learned
-        if lc.tail_rule == "search" or not self._progress > 0.0 or self._tail_misses >= TAIL_MISSES:
+        if (lc.tail_rule == "search" or not self._progress >= lc.tail_min_progress
+                or self._tail_misses >= TAIL_MISSES):
             self._tail_misses = 0
             tau, calls = pred.optimal_shift(x_d, t, tau_prev)
             return tau, PATH_TAIL, calls, None
