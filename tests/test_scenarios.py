@@ -257,13 +257,14 @@ def test_robust_verify_flies_its_own_models(tmp_path: Path) -> None:
         make_governor("cikan", ball)
     foreign = make_governor("cikan", ball.replace(**{"learned.foreign_model": True})).foreign
     assert foreign.endswith("tsg.ancillary_r_diag, tsg.tube)"), foreign
-    # GEO's shipped robust models from behind are of the ancillary tube's labels, which GEO flies:
+    # GEO's shipped robust models (both sides) are of the ancillary tube's labels, which GEO flies:
     # `--governor shipped` lists them; under the ball tube they are another Verify's, left out
     # saying why, unless foreign models are allowed.
     from cikan_ros.registry import shipped_models
     geo = load_config(**{**scenario_overrides("geo"), **truth_overrides("realistic"), "tsg.robust": True})
     assert geo.tsg.tube == "ancillary"
     assert shipped_models(geo) == {"cikan": None, "relu": None}
+    assert shipped_models(geo.replace(**{"mission.approach": "ahead"})) == {"cikan": None, "relu": None}
     assert shipped_names(geo) == ["conventional", "cikan", "relu"]
     geo_ball = geo.replace(**{"tsg.tube": "ball"})
     why = shipped_models(geo_ball)
