@@ -33,6 +33,7 @@ wall time also counts the time the process waits for a core (SPEC §9: compare r
 from __future__ import annotations
 
 import functools
+import math
 import statistics
 import time
 from dataclasses import dataclass, field
@@ -88,6 +89,10 @@ class BenchStates:
     #: The deputy state the governor saw at each start (measured; the start itself under the
     #: nominal truth): what the first-instant search is timed on.
     first_seen: list[NDArray] = field(default_factory=list)
+    #: Per update state: the mission's last progress before it, 1 - tau_{k-1} / tau_{k-2} of its
+    #: last update that moved tau (NaN: none yet), what a learned governor's rule for robust
+    #: Verify's tail remembers (:func:`prime`).
+    progress: list[float] = field(default_factory=list)
     #: Conventional TSG per-state wall times (s), filled by ``conventional_section`` (runs first)
     #: so later sections report speed-ups measured in the same run on the same states.
     conventional_walls: NDArray | None = None
@@ -171,9 +176,14 @@ def collect_states(cfg: Config, n_missions: int = 6) -> BenchStates:
         out.first_seen.append(x0 if res.x_d_seen is None else res.x_d_seen[0])
         out.mission_re_anchors.append(anchor.re_anchors)
         out.mission_anchor_calls.append(rec.calls)
+        progress, before = math.nan, None
         for s in res.update_states():
+            if before is not None and s.tau_prev != before:
+                progress = 1.0 - s.tau_prev / before
+            before = s.tau_prev
             out.updates.append(s)
             out.priors.append(rec.before[s.t])
+            out.progress.append(progress)
     anchor.current = anchor.base
     if len(out.infeasible_seeds) == n_missions:
         raise EveryStartRefusedError(
@@ -190,6 +200,17 @@ class EveryStartRefusedError(NoFeasibleShiftError):
     configuration (``cikan bench`` reports it as such), not a failure of the benchmark."""
 
 
+def prime(governor: Governor, prior: KeplerOrbit | None, progress: float = math.nan) -> None:
+    """Set what a governor carries from the mission's earlier updates to what the mission's
+    governor held before this one: the chief anchor (:func:`prime_anchor`) and, for a learned
+    governor, the last progress its rule for robust Verify's tail starts from. So every timed
+    repeat of an update does the same work, whatever was timed before it. Untimed."""
+    prime_anchor(governor, prior)
+    remember = getattr(governor, "remember_progress", None)
+    if remember is not None:
+        remember(progress)
+
+
 def prime_anchor(governor: Governor, prior: KeplerOrbit | None) -> None:
     """Set the governor's chief anchor to what a mission's held before the update (module
     docstring): its own predictor for the configured chief (None), else a fresh predictor on
@@ -198,11 +219,12 @@ def prime_anchor(governor: Governor, prior: KeplerOrbit | None) -> None:
     a.current = a.base if prior is None else a.base.with_orbit(prior)
 
 
-def timed_update(governor: Governor, s: UpdateState, prior: KeplerOrbit | None = None
-                 ) -> tuple[UpdateRecord, float]:
-    """One update at state s, the anchor first set to ``prior`` (untimed), and its CPU time (s)
-    in this thread: the anchoring, any re-anchoring and chief-table fill included."""
-    prime_anchor(governor, prior)
+def timed_update(governor: Governor, s: UpdateState, prior: KeplerOrbit | None = None,
+                 progress: float = math.nan) -> tuple[UpdateRecord, float]:
+    """One update at state s, the anchor first set to ``prior`` and the tail's last progress to
+    ``progress`` (:func:`prime`, untimed), and its CPU time (s) in this thread: the anchoring,
+    any re-anchoring and chief-table fill included."""
+    prime(governor, prior, progress)
     return thread_timed(governor.update, s.x_d, s.x_c, s.t, s.tau_prev)
 
 
@@ -216,7 +238,7 @@ def time_updates(governor: Governor, states: BenchStates, repeats: int = 3
     for i, (s, prior) in enumerate(zip(states.updates, states.priors)):
         before = governor.anchor.re_anchors
         walls[i], rec = median_thread_time(governor.update, s.x_d, s.x_c, s.t, s.tau_prev, repeats=repeats,
-                                           setup=functools.partial(prime_anchor, governor, prior))
+                                           setup=functools.partial(prime, governor, prior, states.progress[i]))
         re_anchored[i] = governor.anchor.re_anchors > before
         taus[i] = rec.tau_s
         calls[i] = rec.verify_calls

@@ -332,3 +332,35 @@ def test_the_gallop_skips_only_a_zero_test_it_made_itself(growth: float) -> None
     calls = [sum(u.verify_calls for u in r.updates) for r in runs]
     assert calls[0] < calls[1] if growth == 4.0 else calls[0] == calls[1]
     assert any(u.path == PATH_GALLOP for u in skipped.updates)
+
+
+def test_a_timed_update_starts_from_the_missions_progress() -> None:
+    """The benchmark's states carry the mission's last progress before each update
+    (BenchStates.progress: 1 - τ_{k-1} / τ_{k-2} of its last move, NaN before any), and
+    cikan_ros.timing.prime sets a learned governor's tail rule to it before every timed update:
+    a tail state timed after any other state, or repeated, gives the same decision."""
+    from cikan_ros.config import truth_overrides
+    from cikan_ros.governor import PATH_GALLOP
+    from cikan_ros.learn.governor import load_learned_governor
+    from cikan_ros.timing import collect_states, timed_update
+
+    cfg = load_config(None, **truth_overrides("realistic"), **{"tsg.robust": True})
+    states = collect_states(cfg, n_missions=2)
+    assert len(states.progress) == len(states.updates)
+    assert math.isnan(states.progress[0])
+    for i in range(1, len(states.updates)):
+        prev, s = states.updates[i - 1], states.updates[i]
+        if s.t > prev.t and s.tau_prev != prev.tau_prev:   # the same mission, τ moved
+            assert states.progress[i] == 1.0 - s.tau_prev / prev.tau_prev
+    gov = load_learned_governor("cikan", Predictor.from_config(cfg))
+    tail = [i for i, s in enumerate(states.updates)
+            if 0.0 < abs(s.tau_prev) <= cfg.learned.robust_tail_s and states.progress[i] >= 0.05]
+    assert tail
+    i = tail[len(tail) // 2]
+    args = (states.updates[i], states.priors[i], states.progress[i])
+    first = timed_update(gov, *args)[0]
+    assert first.path == PATH_GALLOP
+    for j in (0, tail[0], len(states.updates) - 1):   # anything timed before it
+        timed_update(gov, states.updates[j], states.priors[j], states.progress[j])
+        again = timed_update(gov, *args)[0]
+        assert (again.tau_s, again.path, again.verify_calls) == (first.tau_s, first.path, first.verify_calls)

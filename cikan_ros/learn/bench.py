@@ -98,13 +98,13 @@ def interleaved_times(governors: list[Any], states: BenchStates, repeats: int
     taus = [np.empty(n) for _ in governors]
     calls = [np.empty(n) for _ in governors]
     paths: list[list[str]] = [[] for _ in governors]
-    for i, (s, prior) in enumerate(zip(states.updates, states.priors)):
+    for i, (s, prior, progress) in enumerate(zip(states.updates, states.priors, states.progress)):
         runs: list[list[Any]] = [[] for _ in governors]
         for _ in range(repeats):
             for g, gov in enumerate(governors):
                 if hasattr(gov, "trust"):
                     gov.trust.grant()   # time the network's path (mission_figures: as flown)
-                runs[g].append(timed_update(gov, s, prior))
+                runs[g].append(timed_update(gov, s, prior, progress))
         for g in range(len(governors)):
             walls[g][i] = statistics.median(cpu for _, cpu in runs[g])
             rec = runs[g][0][0]

@@ -246,6 +246,12 @@ class LearnedGovernor:
             return math.nan
         return quantise_shift(self.predictor.side * math.exp(y))
 
+    def remember_progress(self, progress: float) -> None:
+        """Set the last progress the tail's rule starts from (NaN: none) and clear its misses: how
+        a benchmark times an update as the mission's governor would make it
+        (:func:`cikan_ros.timing.prime`)."""
+        self._progress, self._tail_misses = float(progress), 0
+
     def initial(self, x_d: ArrayLike, x_c: ArrayLike, t: float) -> UpdateRecord:
         self.trust.reset()
         self._progress, self._tail_misses = math.nan, 0
