@@ -302,14 +302,14 @@ class LearnedGovernor:
         untrusted network's update is the conventional TSG's), stall, last approach, ladder,
         probe, audit, and the judgement of the update by the trust. The network runs only when a
         step needs its proposal (``propose``)."""
-        scheduled = k % pred.config.learned.probe_every == 0
         if self._robust_tail(pred, tau_prev):
-            return self._tail(pred, x_d, t, tau_prev, scheduled)
+            return self._tail(pred, x_d, t, tau_prev)
         trust = self.trust
         if trust.searching:
             return self._search(pred, x_d, t, tau_prev, propose)
         if trust.stall_due():
             return self._stall(pred, x_d, t, tau_prev)
+        scheduled = k % pred.config.learned.probe_every == 0
         if scheduled and self._last_approach(pred, tau_prev):
             tau, calls = pred.optimal_shift(x_d, t, tau_prev)
             return tau, PATH_PROBE, calls, None
@@ -362,7 +362,7 @@ class LearnedGovernor:
         Verify")."""
         return pred.robust and abs(tau_prev) <= pred.config.learned.robust_tail_s
 
-    def _tail(self, pred: Predictor, x_d: ArrayLike, t: float, tau_prev: float, scheduled: bool = False
+    def _tail(self, pred: Predictor, x_d: ArrayLike, t: float, tau_prev: float
               ) -> tuple[float, str, int, ChiefCache | None]:
         """Robust Verify's tail (:meth:`_robust_tail`). ``learned.tail_rule`` "gallop": the
         shift about the last update's progress q of the way to 0, τ_prev (1 - q), searched up or
