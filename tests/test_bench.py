@@ -225,3 +225,52 @@ def test_mission_speedups_per_update_and_of_whole_missions_golden(monkeypatch) -
     assert out["learned_mission_speedup_worst"] == pytest.approx(4 / 2)
     assert out["learned_mission_cpu_speedup"] == pytest.approx(10 / 3)
     assert out["learned_flown_update_speedup"] == pytest.approx((10 / 6) / (3 / 9))
+
+
+def test_process_cpu_of_a_running_process_is_what_it_used():
+    """cikan_ros.ros.bench.process_cpu_s (from /proc/PID/stat) of this process against its own
+    rusage, after 0.1 s of work: equal to the clock tick (1/SC_CLK_TCK) and the time between."""
+    import os
+    import resource
+    import time
+
+    from cikan_ros.ros.bench import process_cpu_s
+
+    t = time.process_time() + 0.1
+    while time.process_time() < t:
+        sum(range(1000))
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    tick = 1.0 / os.sysconf("SC_CLK_TCK")
+    assert process_cpu_s(os.getpid()) == pytest.approx(r.ru_utime + r.ru_stime, abs=3 * tick)
+    assert math.isnan(process_cpu_s(2 ** 22 + 7))  # no such process
+
+
+def test_ros_section_reports_the_median_lockstep_and_cpu_per_node(monkeypatch):
+    """The ROS section's arithmetic on the figures of its missions (the missions themselves fly in
+    `cikan bench`; tests/test_ros_graph.py flies the graph): the run with the median rtf is
+    reported with the spread beside it, and each node's CPU per step is its spin's less the short
+    mission's over the difference in steps (golden: (1.2 - 0.2) s / (1440 - 10) steps = 0.699 ms)."""
+    import types
+
+    from cikan_ros.ros import bench as ros_bench
+
+    flown = iter([9000.0, 7000.0, 8000.0])
+    calls = []
+
+    def fake(cfg, executor, follow=None, seed=None):
+        short = cfg.mission.duration_s == ros_bench.SHORT_STEPS * cfg.control.period_s
+        calls.append((executor, short))
+        steps = ros_bench.SHORT_STEPS if short else 1440
+        rtf = 1.0 if short or executor == "single" else next(flown)
+        cpu = {"sim_node": 0.2, "recorder_node": 0.1} if short else {"sim_node": 1.2, "recorder_node": 0.1 + rtf / 1e4}
+        return {"rtf": rtf, "step_ms_p99": rtf / 1e4, "mission_success": True, "cpu_s": cpu, "steps": steps}
+
+    monkeypatch.setattr(ros_bench, "lockstep_figures", fake)
+    out = ros_bench.ros_section(load_config(), types.SimpleNamespace(seeds=[None]), 1)
+    assert calls == [("events", False)] * 3 + [("events", True), ("single", False)]
+    assert (out["ros_rtf"], out["ros_rtf_min"], out["ros_rtf_max"]) == (8000.0, 7000.0, 9000.0)
+    assert out["ros_step_ms_p99"] == 0.8 and out["ros_lockstep_runs"] == 3
+    assert out["ros_cpu_per_step_ms_sim"] == pytest.approx(1.0 / 1430 * 1e3)
+    assert out["ros_cpu_per_step_ms_recorder"] == pytest.approx(0.8 / 1430 * 1e3)
+    assert out["ros_cpu_per_step_ms"] == pytest.approx(1.8 / 1430 * 1e3)
+    assert "ros_single_cpu_per_step_ms_sim" not in out and out["ros_single_rtf"] == 1.0

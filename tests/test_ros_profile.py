@@ -9,7 +9,8 @@ import time
 
 import pytest
 
-from cikan_ros.ros.profile import STAGES, NodeProfile, PROFILE_ENV, node_stages, profile_table, stage_of
+from cikan_ros.ros.profile import (CPU_ONLY_ENV, STAGES, NodeProfile, PROFILE_ENV, markdown, node_stages, profile_table,
+                                  spin_cpu, stage_of)
 
 
 @pytest.mark.parametrize("filename, function, stage", [
@@ -51,6 +52,36 @@ def test_a_profile_splits_the_main_threads_cpu_by_stage(tmp_path, monkeypatch):
     assert sum(row[s] for s in STAGES) == pytest.approx(sum(stages.values()) / 10 * 1e6)
 
 
+def busy_for(seconds: float) -> float:
+    t = time.thread_time() + seconds
+    x = 0.0
+    while time.thread_time() < t:
+        x += sum(i * i for i in range(200))
+    return x
+
+
+def test_cpu_only_counts_the_spin_without_a_profile(tmp_path, monkeypatch):
+    """With CIKAN_PROFILE_CPU_ONLY a node only counts its CPU: no cProfile file, the seconds of
+    the block (all threads, at least the main thread's 0.05 s of work), and profile_table's
+    ``flown`` column is that over the steps."""
+    monkeypatch.setenv(PROFILE_ENV, str(tmp_path / "cpu"))
+    monkeypatch.setenv(CPU_ONLY_ENV, "1")
+    with NodeProfile("busy_node"):
+        busy_for(0.05)
+    assert not list((tmp_path / "cpu").glob("*.prof"))
+    flown = spin_cpu(tmp_path / "cpu")
+    assert set(flown) == {"busy_node"} and 0.045 < flown["busy_node"] < 1.0
+    monkeypatch.delenv(CPU_ONLY_ENV)
+    monkeypatch.setenv(PROFILE_ENV, str(tmp_path / "prof"))
+    with NodeProfile("busy_node"):
+        busy_for(0.05)
+    table = profile_table(tmp_path / "prof", steps=10, flown=flown)
+    assert table["busy_node"]["flown"] == pytest.approx(flown["busy_node"] / 10 * 1e6)
+    page = markdown(table, 10, 1.0, "cikan profile", flown_wall_s=0.5)
+    assert "| flown |" in page and "0.50 s of lockstep wall time" in page
+    assert "| flown |" not in markdown(profile_table(tmp_path / "prof", steps=10), 10, 1.0, "cikan profile")
+
+
 def test_no_profile_without_the_environment_variable(tmp_path, monkeypatch):
     monkeypatch.delenv(PROFILE_ENV, raising=False)
     with NodeProfile("quiet_node"):
@@ -69,4 +100,5 @@ def test_cikan_profile_reports_every_node_of_the_graph():
     for row in table.values():
         assert row["process"] >= row["main"] > 0
         assert sum(row[s] for s in STAGES) <= row["main"] * 1.05
+        assert 0 < row["flown"] < float("inf")  # the same mission flown before without the profiler
     assert table["sim_node"]["publish"] > 0 and table["recorder_node"]["record"] > 0

@@ -15,14 +15,18 @@ from every function's own time, classified by where it lives:
 - ``other``: the rest of the interpreter's time (logging, the standard library).
 
 The process's other threads (DDS's receive and event threads, rclpy's) are the process CPU less
-the main thread's. cProfile adds its own cost to every Python call, so the shares are what to
-read, not the absolute microseconds (the step's uninstrumented cost is ``cikan bench``'s).
+the main thread's. cProfile adds its own cost to every Python call (it doubled the graph's CPU
+per step here), so its stages are shares to read; what each node costs as flown comes from a
+mission without it: with :data:`CPU_ONLY_ENV` also set, each node only counts the CPU seconds of
+its spin (:func:`spin_cpu`), which ``cikan profile`` shows beside the stages and ``cikan bench``
+reports per node (``ros_cpu_per_step_ms_<node>``).
 No rclpy here: the node processes import it, the command only reads files.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import resource
 import time
@@ -31,41 +35,58 @@ from typing import Any
 
 #: The environment variable that turns node profiling on: the directory to write to.
 PROFILE_ENV = "CIKAN_PROFILE_DIR"
+#: Set (to anything) beside :data:`PROFILE_ENV`: no cProfile, only the CPU seconds of the spin.
+CPU_ONLY_ENV = "CIKAN_PROFILE_CPU_ONLY"
 STAGES = ("rclpy", "publish", "messages", "record", "compute", "other")
 
 
 class NodeProfile:
     """Profile this process's spin when :data:`PROFILE_ENV` is set (a no-op otherwise):
-    ``with NodeProfile(name): spin...``."""
+    ``with NodeProfile(name): spin...``; with :data:`CPU_ONLY_ENV` too, only count its CPU
+    (``<dir>/<node>.json``, no ``.prof``)."""
 
     def __init__(self, name: str) -> None:
         self.dir = os.environ.get(PROFILE_ENV)
+        self.cpu_only = bool(os.environ.get(CPU_ONLY_ENV))
         self.name = name
         self.prof: Any = None
 
     def __enter__(self) -> "NodeProfile":
         if self.dir:
-            import cProfile
+            if not self.cpu_only:
+                import cProfile
 
-            self.prof = cProfile.Profile(time.thread_time)
+                self.prof = cProfile.Profile(time.thread_time)
             self.cpu0 = time.thread_time(), _process_cpu()
-            self.prof.enable()
+            if self.prof is not None:
+                self.prof.enable()
         return self
 
     def __exit__(self, *exc: Any) -> None:
-        if self.prof is None:
+        if not self.dir:
             return
-        self.prof.disable()
+        if self.prof is not None:
+            self.prof.disable()
         main, proc = time.thread_time() - self.cpu0[0], _process_cpu() - self.cpu0[1]
         out = Path(self.dir)
         out.mkdir(parents=True, exist_ok=True)
-        self.prof.dump_stats(out / f"{self.name}.prof")
+        if self.prof is not None:
+            self.prof.dump_stats(out / f"{self.name}.prof")
         (out / f"{self.name}.json").write_text(json.dumps({"main_cpu_s": main, "process_cpu_s": proc}))
 
 
 def _process_cpu() -> float:
     r = resource.getrusage(resource.RUSAGE_SELF)
     return r.ru_utime + r.ru_stime
+
+
+def spin_cpu(directory: Path) -> dict[str, float]:
+    """CPU seconds of each node's spin, all its threads (``<dir>/<node>.json``), by node name."""
+    out = {}
+    for path in sorted(Path(directory).glob("*.json")):
+        cpu = json.loads(path.read_text())
+        out[path.stem] = max(float(cpu["process_cpu_s"]), float(cpu["main_cpu_s"]))
+    return out
 
 
 def stage_of(filename: str, function: str) -> str:
@@ -98,9 +119,11 @@ def node_stages(prof_path: Path) -> dict[str, float]:
     return out
 
 
-def profile_table(directory: Path, steps: int) -> dict[str, dict[str, float]]:
+def profile_table(directory: Path, steps: int, flown: dict[str, float] | None = None) -> dict[str, dict[str, float]]:
     """Per node: microseconds per step of each stage of its main thread, ``main`` (their sum),
-    ``threads`` (the process's other threads) and ``process`` (all of it)."""
+    ``threads`` (the process's other threads) and ``process`` (all of it); with ``flown`` (each
+    node's spin CPU seconds in a mission without the profiler, :func:`spin_cpu`) also
+    ``flown``, the process's microseconds per step there."""
     out: dict[str, dict[str, float]] = {}
     for prof in sorted(Path(directory).glob("*.prof")):
         cpu = json.loads(prof.with_suffix(".json").read_text())
@@ -110,17 +133,27 @@ def profile_table(directory: Path, steps: int) -> dict[str, dict[str, float]]:
         row["threads"] = max(0.0, cpu["process_cpu_s"] - cpu["main_cpu_s"]) / steps * 1e6
         # getrusage counts in coarser ticks than the thread clock: never below the main thread
         row["process"] = max(cpu["process_cpu_s"], cpu["main_cpu_s"]) / steps * 1e6
+        if flown is not None:
+            row["flown"] = flown.get(prof.stem, math.nan) / steps * 1e6
         out[prof.stem] = row
     return out
 
 
-def markdown(table: dict[str, dict[str, float]], steps: int, wall_s: float, command: str) -> str:
-    """The profile page: CPU microseconds per step, per node and stage."""
-    cols = STAGES + ("main", "threads", "process")
-    lines = ["# Where a lockstep step goes: CPU per node process and stage", "",
-             f"Regenerate: `{command}` (docs/usage.md, `cikan profile`). One lockstep mission of {steps} steps, {wall_s:.2f} s of "
-             "lockstep wall time under the profiler; CPU microseconds per step (main thread by stage, "
-             "from each function's own time; other threads; the whole process).", "",
+def markdown(table: dict[str, dict[str, float]], steps: int, wall_s: float, command: str,
+             flown_wall_s: float | None = None) -> str:
+    """The profile page: CPU microseconds per step, per node and stage (and as flown, without the
+    profiler, when the table has it)."""
+    flown = all("flown" in r for r in table.values()) and bool(table)
+    cols = STAGES + ("main", "threads", "process") + (("flown",) if flown else ())
+    text = (f"Regenerate: `{command}` (docs/usage.md, `cikan profile`). One lockstep mission of {steps} steps, "
+            f"{wall_s:.2f} s of lockstep wall time under the profiler; CPU microseconds per step (main thread "
+            "by stage, from each function's own time; other threads; the whole process).")
+    if flown:
+        text += (f" **flown**: the whole process's CPU per step in the same mission flown just before without the "
+                 f"profiler ({flown_wall_s:.2f} s of lockstep wall time; its spin from start to end, the readiness "
+                 "handshake and the acknowledgements included): what each node costs as flown. The profiler's "
+                 "stages are shares of it to read, not its microseconds.")
+    lines = ["# Where a lockstep step goes: CPU per node process and stage", "", text, "",
              "| node | " + " | ".join(cols) + " |", "|---|" + "---|" * len(cols)]
     for node, row in table.items():
         lines.append(f"| {node} | " + " | ".join(f"{row[c]:.0f}" for c in cols) + " |")
