@@ -30,34 +30,27 @@ def test_each_function_belongs_to_one_stage(filename, function, stage):
     assert stage_of(filename, function) == stage
 
 
+def busy_for(seconds: float) -> float:
+    """Work on this thread for ``seconds`` of its CPU clock."""
+    t = time.thread_time() + seconds
+    x = 0.0
+    while time.thread_time() < t:
+        x += sum(i * i for i in range(200))
+    return x
+
+
 def test_a_profile_splits_the_main_threads_cpu_by_stage(tmp_path, monkeypatch):
     """A real profile of busy work in this process: its stages sum to what cProfile timed, and
     the table divides by the steps (microseconds per step)."""
     monkeypatch.setenv(PROFILE_ENV, str(tmp_path))
-
-    def busy() -> float:
-        t = time.thread_time() + 0.05
-        x = 0.0
-        while time.thread_time() < t:
-            x += sum(i * i for i in range(200))
-        return x
-
     with NodeProfile("busy_node"):
-        busy()
+        busy_for(0.05)
     stages = node_stages(tmp_path / "busy_node.prof")
     assert set(stages) == set(STAGES) and sum(stages.values()) > 0.04
     table = profile_table(tmp_path, steps=10)
     row = table["busy_node"]
     assert row["process"] >= row["main"] > 0.04 / 10 * 1e6 * 0.9
     assert sum(row[s] for s in STAGES) == pytest.approx(sum(stages.values()) / 10 * 1e6)
-
-
-def busy_for(seconds: float) -> float:
-    t = time.thread_time() + seconds
-    x = 0.0
-    while time.thread_time() < t:
-        x += sum(i * i for i in range(200))
-    return x
 
 
 def test_cpu_only_counts_the_spin_without_a_profile(tmp_path, monkeypatch):

@@ -15,8 +15,8 @@ from every function's own time, classified by where it lives:
 - ``other``: the rest of the interpreter's time (logging, the standard library).
 
 The process's other threads (DDS's receive and event threads, rclpy's) are the process CPU less
-the main thread's. cProfile adds its own cost to every Python call (it doubled the graph's CPU
-per step here), so its stages are shares to read; what each node costs as flown comes from a
+the main thread's. cProfile adds its own cost to every Python call (2.6x the graph's CPU per
+step here, docs/ros_profile.md), so its stages are shares to read; what each node costs as flown comes from a
 mission without it: with :data:`CPU_ONLY_ENV` also set, each node only counts the CPU seconds of
 its spin (:func:`spin_cpu`), which ``cikan profile`` shows beside the stages and ``cikan bench``
 reports per node (``ros_cpu_per_step_ms_<node>``).
@@ -80,13 +80,16 @@ def _process_cpu() -> float:
     return r.ru_utime + r.ru_stime
 
 
+def _whole_process_s(cpu: dict[str, float]) -> float:
+    """A node's spin CPU, all threads, from its ``.json``: getrusage counts in coarser ticks than
+    the thread clock, so never below the main thread's."""
+    return max(float(cpu["process_cpu_s"]), float(cpu["main_cpu_s"]))
+
+
 def spin_cpu(directory: Path) -> dict[str, float]:
     """CPU seconds of each node's spin, all its threads (``<dir>/<node>.json``), by node name."""
-    out = {}
-    for path in sorted(Path(directory).glob("*.json")):
-        cpu = json.loads(path.read_text())
-        out[path.stem] = max(float(cpu["process_cpu_s"]), float(cpu["main_cpu_s"]))
-    return out
+    return {path.stem: _whole_process_s(json.loads(path.read_text()))
+            for path in sorted(Path(directory).glob("*.json"))}
 
 
 def stage_of(filename: str, function: str) -> str:
@@ -131,8 +134,7 @@ def profile_table(directory: Path, steps: int, flown: dict[str, float] | None = 
         row = {s: v / steps * 1e6 for s, v in stages.items()}
         row["main"] = cpu["main_cpu_s"] / steps * 1e6
         row["threads"] = max(0.0, cpu["process_cpu_s"] - cpu["main_cpu_s"]) / steps * 1e6
-        # getrusage counts in coarser ticks than the thread clock: never below the main thread
-        row["process"] = max(cpu["process_cpu_s"], cpu["main_cpu_s"]) / steps * 1e6
+        row["process"] = _whole_process_s(cpu) / steps * 1e6
         if flown is not None:
             row["flown"] = flown.get(prof.stem, math.nan) / steps * 1e6
         out[prof.stem] = row
