@@ -38,7 +38,7 @@ LAYERS: list[dict[str, list[str]]] = [
                            "cikan_ros.learn.dataset", "cikan_ros.learn.train", "cikan_ros.learn.tune",
                            "cikan_ros.learn.cards", "cikan_ros.learn.bench"],
      "ros": ["cikan_ros.ros.*", "cikan_ros.telemetry"]},
-    {"nodes": ["sim_node.*", "governor_node.*", "controller_node.*"],
+    {"nodes": ["sim_node.*", "governor_node.*", "controller_node.*", "cikan_ros.ros.container"],
      "analysis": ["cikan_ros.analysis.*"],
      "view": ["cikan_ros.view.*"]},
     {"commands": ["cikan_ros.commands.*", "cikan_ros.cli"]},

@@ -253,24 +253,34 @@ def test_ros_section_reports_the_median_lockstep_and_cpu_per_node(monkeypatch):
     import types
 
     from cikan_ros.ros import bench as ros_bench
+    from cikan_ros.ros import graph_spec
 
     flown = iter([9000.0, 7000.0, 8000.0])
     calls = []
 
-    def fake(cfg, executor, follow=None, seed=None):
+    def fake(cfg, executor, follow=None, seed=None, layout=graph_spec.DEFAULT_LAYOUT):
         short = cfg.mission.duration_s == ros_bench.SHORT_STEPS * cfg.control.period_s
-        calls.append((executor, short))
+        calls.append((executor, short, layout))
         steps = ros_bench.SHORT_STEPS if short else 1440
+        if layout == "separate":   # one process per node
+            cpu = {"sim_node": 0.3, "recorder_node": 0.2} if short else {"sim_node": 2.3, "recorder_node": 1.2}
+            return {"rtf": 2.0, "step_ms_p99": 2.0, "mission_success": True, "cpu_s": cpu, "steps": steps}
         rtf = 1.0 if short or executor == "single" else next(flown)
-        cpu = {"sim_node": 0.2, "recorder_node": 0.1} if short else {"sim_node": 1.2, "recorder_node": 0.1 + rtf / 1e4}
+        cpu = ({"recorder+sim": 0.2, "governor+controller": 0.1} if short else
+               {"recorder+sim": 1.2, "governor+controller": 0.1 + rtf / 1e4})
         return {"rtf": rtf, "step_ms_p99": rtf / 1e4, "mission_success": True, "cpu_s": cpu, "steps": steps}
 
     monkeypatch.setattr(ros_bench, "lockstep_figures", fake)
     out = ros_bench.ros_section(load_config(), types.SimpleNamespace(seeds=[None]), 1)
-    assert calls == [("events", False)] * 3 + [("events", True), ("single", False)]
+    default = graph_spec.DEFAULT_LAYOUT
+    assert calls == [("events", False, default)] * 3 + [("events", True, default), ("single", False, default),
+                                                        ("events", False, "separate"), ("events", True, "separate")]
     assert (out["ros_rtf"], out["ros_rtf_min"], out["ros_rtf_max"]) == (8000.0, 7000.0, 9000.0)
-    assert out["ros_step_ms_p99"] == 0.8 and out["ros_lockstep_runs"] == 3
-    assert out["ros_cpu_per_step_ms_sim"] == pytest.approx(1.0 / 1430 * 1e3)
-    assert out["ros_cpu_per_step_ms_recorder"] == pytest.approx(0.8 / 1430 * 1e3)
+    assert out["ros_step_ms_p99"] == 0.8 and out["ros_lockstep_runs"] == 3 and out["ros_layout"] == default
+    assert out["ros_cpu_per_step_ms_recorder+sim"] == pytest.approx(1.0 / 1430 * 1e3)
+    assert out["ros_cpu_per_step_ms_governor+controller"] == pytest.approx(0.8 / 1430 * 1e3)
     assert out["ros_cpu_per_step_ms"] == pytest.approx(1.8 / 1430 * 1e3)
-    assert "ros_single_cpu_per_step_ms_sim" not in out and out["ros_single_rtf"] == 1.0
+    assert "ros_single_cpu_per_step_ms_recorder+sim" not in out and out["ros_single_rtf"] == 1.0
+    # the separate layout's fixed cost is its own short mission's: (2.3 - 0.3 + 1.2 - 0.2) s / 1430
+    assert out["ros_separate_rtf"] == 2.0 and out["ros_separate_cpu_per_step_ms"] == pytest.approx(3.0 / 1430 * 1e3)
+    assert out["ros_separate_cpu_per_step_ms_sim"] == pytest.approx(2.0 / 1430 * 1e3)

@@ -18,6 +18,7 @@ import pytest
 import yaml
 
 from cikan_ros.config import load_config
+from cikan_ros.errors import CikanError
 from cikan_ros.ros import graph_spec, launch
 from cikan_ros.ros.params import node_defaults
 
@@ -124,3 +125,38 @@ def test_graph_spec_is_what_the_launcher_starts(tmp_path: Path, monkeypatch: pyt
     assert written["cfg"] == cfg
     assert peers_as_set(written["params"]) == peers_as_set(
         graph_spec.node_parameters(governor="cikan", seed=3, bag=(tmp_path / "bag").resolve()))
+
+
+def test_every_layout_runs_every_node_once_and_a_container_runs_several(tmp_path: Path) -> None:
+    """Each process layout puts each node of the graph in exactly one process, the recorder's
+    first (it must hear everything; the simulator waits for every peer to be ready); a process
+    of several nodes is the container's command line, its nodes named; a node run by another
+    executable (--governor-exec) gets a process of its own; the container builds each node from
+    the class graph_spec names."""
+    names = [n.name for n in graph_spec.NODES]
+    for layout, groups in graph_spec.LAYOUTS.items():
+        flat = [n for g in groups for n in g]
+        assert sorted(flat) == sorted(names), layout
+        assert "recorder" in groups[0], layout
+    assert graph_spec.DEFAULT_LAYOUT in graph_spec.LAYOUTS
+    assert graph_spec.processes("paired", ["governor"]) == [("recorder", "sim"), ("governor",), ("controller",)]
+    assert graph_spec.processes("single", ["governor"]) == [("governor",), ("recorder", "controller", "sim")]
+    assert graph_spec.processes("separate") == [(n,) for n in names]
+    with pytest.raises(ValueError, match="unknown process layout 'pairs'"):
+        graph_spec.processes("pairs")
+    assert graph_spec.process_name(("sim",)) == "sim_node"
+    assert graph_spec.process_name(("recorder", "sim")) == "recorder+sim"
+    graph = launch.Graph(tmp_path, {}, tmp_path / "params.yaml")
+    assert graph.argv(("recorder", "sim"))[1:] == ["-m", "cikan_ros.ros.container", "recorder", "sim", "--ros-args",
+                                                   "--params-file", str(tmp_path / "params.yaml")]
+    scripts = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"]
+    assert scripts["cikan_container"] == "cikan_ros.ros.container:main"
+    for n in graph_spec.NODES:
+        cls = graph_spec.load_object(n.node_class)
+        assert cls.__module__ in (n.module, f"{n.module}.node") and isinstance(cls, type)
+
+
+def test_a_bad_layout_is_one_line_before_any_process_starts(tmp_path: Path) -> None:
+    with pytest.raises(CikanError, match="unknown process layout 'both'; known: paired, separate, single"):
+        launch.run_ros_mission(load_config(), bag=tmp_path / "bag", layout="both")
+    assert not (tmp_path / "bag").exists()

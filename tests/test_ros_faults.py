@@ -20,6 +20,7 @@ import yaml
 from cikan_ros.config import load_config
 from cikan_ros.errors import CikanError, MissionError
 from cikan_ros.ros.graph import QOS_STREAM
+from cikan_ros.ros.graph_spec import DEFAULT_LAYOUT, processes
 from cikan_ros.ros.launch import Graph, ros_environment, run_ros_mission, write_params
 from ros_helpers import (TestNode, commands_by_stamp, controller_record, diagnostics, independent_check,
                          kill_at_step, mcap_counts, ros_env, rosbags_messages, set_in_flight, shifts, sim_steps,
@@ -29,9 +30,10 @@ __all__ = ["ros_env"]
 
 
 def test_governor_killed_controller_holds_last_verified_shift(ros_env: int, tmp_path: Path) -> None:
-    """Judged by stamps and contents: every step is commanded once, with the shift published for
-    it or, where none came in time, the shift in force before (a hold); after the governor died
-    only holds; each command is the FTRE law toward the shift it names; the plant stays safe."""
+    """One process per node (the default layout runs the governor with the controller). Judged by
+    stamps and contents: every step is commanded once, with the shift published for it or, where
+    none came in time, the shift in force before (a hold); after the governor died only holds;
+    each command is the FTRE law toward the shift it names; the plant stays safe."""
     from cikan_ros.mission import ClosedLoop
     from cikan_ros.ros.convert import Timeline
     from cikan_ros.tsg import Predictor
@@ -40,7 +42,8 @@ def test_governor_killed_controller_holds_last_verified_shift(ros_env: int, tmp_
     node = watcher(ros_env)
     try:   # paced (12 s wall) so that the kill at step 10 lands mid-mission even on a loaded machine
         metrics = run_ros_mission(cfg, bag=tmp_path / "bag", on_started=kill_at_step(node, "governor", 10),
-                                  node_params={"controller.tau_deadline_s": 2.0, "sim.max_rtf": 100.0})
+                                  node_params={"controller.tau_deadline_s": 2.0, "sim.max_rtf": 100.0},
+                                  layout="separate")
     finally:
         node.close()
     assert metrics["ros"]["exit_codes"]["governor"] == -signal.SIGKILL
@@ -92,18 +95,22 @@ def test_governor_killed_controller_holds_last_verified_shift(ros_env: int, tmp_
     assert metrics["violations"] == 0
 
 
-def test_controller_killed_sim_applies_zero_thrust(ros_env: int, tmp_path: Path) -> None:
-    """Judged by stamps and contents: each step's thrust is the controller's command stamped for
-    it, or zero where none came in time (a missed deadline, reported); after the controller died
-    only zeros."""
+@pytest.mark.parametrize("layout", ["paired", "separate"])
+def test_controller_killed_sim_applies_zero_thrust(ros_env: int, tmp_path: Path, layout: str) -> None:
+    """The controller's process killed (in the default layout the flight software's: the governor
+    and the controller). Judged by stamps and contents: each step's thrust is the controller's
+    command stamped for it, or zero where none came in time (a missed deadline, reported); after
+    the controller died only zeros; the plant and its recording fly on."""
     cfg = load_config(**{"mission.duration_s": 1200.0})
     node = watcher(ros_env)
     try:   # paced (12 s wall) so that the kill at step 10 lands mid-mission even on a loaded machine
         metrics = run_ros_mission(cfg, bag=tmp_path / "bag", on_started=kill_at_step(node, "controller", 10),
-                                  node_params={"sim.command_deadline_s": 2.0, "sim.max_rtf": 100.0})
+                                  node_params={"sim.command_deadline_s": 2.0, "sim.max_rtf": 100.0}, layout=layout)
     finally:
         node.close()
     assert metrics["ros"]["exit_codes"]["controller"] == -signal.SIGKILL
+    assert metrics["ros"]["exit_codes"]["governor"] == (-signal.SIGKILL if layout == "paired" else 0)
+    assert metrics["ros"]["exit_codes"]["recorder"] == 0
     assert metrics["ros"]["exit_codes"]["sim"] == 0
     msgs = rosbags_messages(tmp_path / "bag")
     commands = commands_by_stamp(msgs)
@@ -138,14 +145,19 @@ def test_controller_killed_sim_applies_zero_thrust(ros_env: int, tmp_path: Path)
     assert len(warn) == len(zeros)
 
 
-def test_recorder_sigkill_leaves_bag_readable_to_last_chunk(ros_env: int, tmp_path: Path) -> None:
+@pytest.mark.parametrize("layout, failure", [("separate", "recorder_node ended abnormally"),
+                                             ("paired", r"sim_node \(in recorder\+sim\) exited with code -9")])
+def test_recorder_sigkill_leaves_bag_readable_to_last_chunk(ros_env: int, tmp_path: Path, layout: str,
+                                                            failure: str) -> None:
+    """The recorder's process killed outright (in the default layout the simulator's too): the
+    mission fails with one line naming it, and the bag reads back up to its last flushed chunk."""
     cfg = load_config(**{"mission.duration_s": 3600.0})
     bag = tmp_path / "bag"
     node = watcher(ros_env)
     try:
-        with pytest.raises(MissionError, match="recorder_node ended abnormally"):
+        with pytest.raises(MissionError, match=failure):
             run_ros_mission(cfg, bag=bag, on_started=kill_at_step(node, "recorder", 150),
-                            node_params={"recorder.chunk_bytes": 8192, "sim.max_rtf": 400.0})
+                            node_params={"recorder.chunk_bytes": 8192, "sim.max_rtf": 400.0}, layout=layout)
     finally:
         node.close()
     meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
@@ -207,7 +219,7 @@ def assert_closed_mid_mission(bag: Path) -> None:
 def test_sigint_to_cikan_mission_ends_children_and_closes_bag(ros_env: int, tmp_path: Path) -> None:
     proc, children = launch_cikan(tmp_path / "bag")
     try:
-        assert len(children) == 4
+        assert len(children) == len(processes(DEFAULT_LAYOUT))
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=60)
     finally:
@@ -226,7 +238,7 @@ def test_sigkill_to_cikan_mission_ends_children_and_closes_bag(ros_env: int, tmp
     signal SIGTERM), which end as on Ctrl-C; the recorder closes the bag."""
     proc, children = launch_cikan(tmp_path / "bag")
     try:
-        assert len(children) == 4
+        assert len(children) == len(processes(DEFAULT_LAYOUT))
         proc.kill()
         proc.communicate()
         wait_until(lambda: all(not Path(f"/proc/{pid}").exists() or _zombie(pid) for pid in children),
@@ -379,7 +391,9 @@ def test_a_governor_failing_at_start_says_where_the_bag_is(ros_env: int, tmp_pat
 
 def test_bad_model_at_launch_is_one_line_and_a_rerun_may_reuse_the_bag(ros_env: int, tmp_path: Path) -> None:
     cfg = load_config(**{"mission.duration_s": 100.0})
-    with pytest.raises(CikanError, match="governor_node exited with code 2: .*nope") as failure:
+    # the default layout runs the governor with the controller: the line names the node and its process
+    with pytest.raises(CikanError, match=r"governor_node \(in governor\+controller\) exited with code 2: .*nope") \
+            as failure:
         run_ros_mission(cfg, governor=str(tmp_path / "nope"), bag=tmp_path / "bag")
     assert "\n" not in str(failure.value) and "removed the empty bag" in str(failure.value)
     assert failure.value.exit_code == 2                # the node refused its input: bad input

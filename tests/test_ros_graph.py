@@ -14,6 +14,7 @@ from cikan_ros.config import load_config
 from cikan_ros.registry import GOVERNOR_NAMES, make_governor
 from cikan_ros.mission import nominal_start, run_mission
 from cikan_ros.tsg import Predictor
+from cikan_ros.ros.graph_spec import DEFAULT_LAYOUT, LAYOUTS, process_name
 from cikan_ros.ros.launch import run_ros_mission
 from ros_helpers import (independent_check, isolated_ros, mcap_counts, ros_env, rosbags_messages, shifts, sim_steps,
                          states, tau_history)
@@ -66,6 +67,27 @@ def test_the_other_executor_flies_the_same_mission(ros_env: int, tmp_path: Path,
     msgs = rosbags_messages(tmp_path / "bag")
     stamps, _ = states(msgs, "/deputy/odom")
     assert len(stamps) == len(offline.t)
+    np.testing.assert_array_equal(tau_history(msgs, len(stamps), stamps), offline.tau)
+    steps = sim_steps(msgs)
+    u = np.array([[float(w) for w in steps[k]["u_kmps2"].split()] for k in range(len(stamps) - 1)])
+    np.testing.assert_array_equal(u, offline.u[:-1])
+    assert metrics["ros"]["deadline_misses"] == 0 and metrics["tau0_s"] == offline.metrics()["tau0_s"]
+
+
+@pytest.mark.parametrize("layout", sorted(set(LAYOUTS) - {DEFAULT_LAYOUT}))
+def test_every_process_layout_flies_the_same_mission(layout: str, ros_env: int, tmp_path: Path) -> None:
+    """The nodes in other processes (one each; all in one) than the default's (the module's
+    full mission, test_lockstep_graph_equals_offline_loop): one hour of the lockstep flies the
+    offline loop's shifts and thrusts, step for step, and the recorder's bag has every message."""
+    cfg = load_config(**{"mission.duration_s": 3600.0})
+    metrics = run_ros_mission(cfg, governor="conventional", bag=tmp_path / "bag", layout=layout)
+    assert metrics["ros"]["layout"] == layout
+    assert metrics["ros"]["processes"] == [process_name(g) for g in LAYOUTS[layout]]
+    gov = make_governor("conventional", cfg, Predictor.from_config(cfg))
+    offline = run_mission(gov, nominal_start(gov.predictor))
+    msgs = rosbags_messages(tmp_path / "bag")
+    stamps, _ = states(msgs, "/deputy/odom")
+    assert len(stamps) == len(offline.t) and len(msgs["/deputy/accel_cmd"]) == len(offline.t) - 1
     np.testing.assert_array_equal(tau_history(msgs, len(stamps), stamps), offline.tau)
     steps = sim_steps(msgs)
     u = np.array([[float(w) for w in steps[k]["u_kmps2"].split()] for k in range(len(stamps) - 1)])

@@ -142,3 +142,35 @@ def test_a_node_that_hangs_while_it_ends_says_where_and_exits(ros_env: int) -> N
         proc.kill()
     assert proc.returncode == 1, err
     assert "Timeout" in err and "in close" in err and "hanging_node.py" in err
+
+
+@pytest.mark.parametrize("args, problem", [
+    (["cikan_container"], "name each node once, at least one: recorder, governor, controller, sim"),
+    (["cikan_container", "sim", "sim"], "name each node once"),
+    (["cikan_container", "sim", "planner"], "unknown node 'planner'; known: recorder, governor, controller, sim"),
+    (["cikan_container", "recorder", "sim", "--ros-args", "--params-file", "no/such/params.yaml"],
+     "no/such/params.yaml"),
+    # a parameter none of its nodes declares; one that only one of them declares is taken
+    (["cikan_container", "governor", "controller", "--ros-args", "-p", "sim.seed:=3", "-p",
+      "controller.tau_deadline_s:=2.0"],
+     "unknown parameter 'sim.seed' (the parameters of cikan_container: governor_node --help, controller_node --help)"),
+    (["cikan_container", "governor", "controller", "--ros-args", "-p", "controller.tau_deadline_s:=0.0"],
+     "controller.tau_deadline_s must be a positive number of seconds, got 0.0"),
+])
+def test_a_container_refuses_bad_input_with_one_line(args: list[str], problem: str, ros_env: int) -> None:
+    """cikan_container (several nodes in one process) as a user starts it: a bad node list, params
+    file or parameter is one line and exit code 2, before any node runs."""
+    out = run(args)
+    assert out.returncode == 2, out.stderr
+    lines = stderr_lines(out)
+    assert len(lines) == 1 and lines[0].startswith("cikan_container: error: ") and problem in lines[0], out.stderr
+
+
+def test_a_container_help_names_its_nodes_and_layouts(ros_env: int, tmp_path: Path) -> None:
+    logs = tmp_path / "help_logs"
+    out = run(["cikan_container", "--help"], ROS_LOG_DIR=str(logs))
+    assert out.returncode == 0 and out.stdout.startswith("usage: cikan_container "), out.stderr
+    text = " ".join(out.stdout.split())
+    assert "Nodes: recorder, governor, controller, sim." in text
+    assert "paired: recorder sim | governor controller" in text and "sim_node --help" not in text
+    assert not logs.exists()                         # rclpy not started

@@ -136,7 +136,8 @@ def test_a_governor_that_raises_is_held_at_its_last_verified_shift(ros_env: int,
 
 
 def test_a_governor_that_misses_its_deadline_is_taken_back(ros_env: int, tmp_path: Path) -> None:
-    """governor_node stopped (SIGSTOP) for 2.5 s from about step 5, then continued: the
+    """One process per node (so that the governor stops alone): governor_node stopped (SIGSTOP)
+    for 2.5 s from about step 5, then continued: the
     controller holds the last verified shift for the steps it missed (each hold's shift is the
     one in force before), rejects the shifts that come late for those steps as stale, and takes
     the governor's shifts again once they come in time: the mission ends on the governor's shifts.
@@ -156,7 +157,8 @@ def test_a_governor_that_misses_its_deadline_is_taken_back(ros_env: int, tmp_pat
             governor.send_signal(signal.SIGCONT)
     try:   # paced (8 s wall): the lost mode's short waits do not race to the mission's end
         metrics = run_ros_mission(cfg, bag=tmp_path / "bag", on_started=at_step(node, 5, stop_for_a_while),
-                                  node_params={"controller.tau_deadline_s": 1.0, "sim.max_rtf": 100.0})
+                                  node_params={"controller.tau_deadline_s": 1.0, "sim.max_rtf": 100.0},
+                                  layout="separate")
     finally:
         node.close()
     assert stopped and metrics["ros"]["exit_codes"] == {"recorder": 0, "governor": 0, "controller": 0, "sim": 0}

@@ -46,6 +46,17 @@ def add_config_args(parser: argparse.ArgumentParser) -> None:
                              "applied after --truth and --robust)")
 
 
+def add_layout_arg(parser: argparse.ArgumentParser, default: str | None = None) -> None:
+    """``--layout``: how the ROS graph's nodes share processes (graph_spec.LAYOUTS)."""
+    from ..ros.graph_spec import DEFAULT_LAYOUT, LAYOUTS
+
+    default = default or DEFAULT_LAYOUT
+    groups = "; ".join(f"{k}: {' | '.join('+'.join(g) for g in v)}" for k, v in LAYOUTS.items())
+    parser.add_argument("--layout", choices=list(LAYOUTS), default=default,
+                        help=f"ROS run: the nodes' processes ({groups}; default {default}; "
+                             'docs/ros_graph.md, "Processes")')
+
+
 def config_from_args(args: argparse.Namespace) -> Config:
     """The configuration named by ``--config`` with ``--scenario``, ``--truth``, ``--robust`` and
     then the ``--set`` overrides applied."""

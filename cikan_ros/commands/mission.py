@@ -7,7 +7,7 @@ import sys
 from typing import Any
 
 from ..strict_json import dumps
-from . import add_config_args, config_from_args, int_at_least, seed_arg
+from . import add_config_args, add_layout_arg, config_from_args, int_at_least, seed_arg
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -37,6 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="with --view: port on 127.0.0.1 (default: a free one)")
     p.add_argument("--no-browser", action="store_true",
                    help="with --view: do not open a browser (one opens only where a desktop session is)")
+    add_layout_arg(p)
     add_config_args(p)
     p.set_defaults(func=run)
 
@@ -116,7 +117,8 @@ def run(args: argparse.Namespace) -> int:
         try:
             metrics = run_ros_mission(cfg, governor=args.governor, seed=args.seed, bag=args.bag,
                                       config_path=args.config, overrides=args.overrides,
-                                      governor_exec=args.governor_exec, progress=progress)
+                                      governor_exec=args.governor_exec, progress=progress,
+                                      layout=args.layout)
         except BaseException:
             if view is not None:
                 view[0].terminate()

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from . import add_config_args, config_from_args, seed_arg
+from . import add_config_args, add_layout_arg, config_from_args, seed_arg
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -23,6 +23,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=seed_arg, default=None, help="Monte Carlo start (default: the nominal start)")
     p.add_argument("--json", action="store_true", help="print the table as JSON")
     p.add_argument("--out", metavar="FILE.md", default=None, help="also write the table as a Markdown page")
+    add_layout_arg(p, "separate")   # one node per process: each node's CPU apart
     p.set_defaults(func=run)
 
 
@@ -43,9 +44,11 @@ def run(args: argparse.Namespace) -> int:
     try:
         # the same mission without the profiler first: each node's CPU as flown
         with node_environment(PROFILE_ENV, str(tmp / "cpu")), node_environment(CPU_ONLY_ENV, "1"):
-            flown = run_ros_mission(cfg, governor=args.governor, seed=args.seed, bag=tmp / "bag0")
+            flown = run_ros_mission(cfg, governor=args.governor, seed=args.seed, bag=tmp / "bag0",
+                                     layout=args.layout)
         with node_environment(PROFILE_ENV, str(tmp / "prof")):
-            m = run_ros_mission(cfg, governor=args.governor, seed=args.seed, bag=tmp / "bag")
+            m = run_ros_mission(cfg, governor=args.governor, seed=args.seed, bag=tmp / "bag",
+                                     layout=args.layout)
         steps = round(cfg.mission.duration_s / cfg.control.period_s)
         table = profile_table(tmp / "prof", steps, spin_cpu(tmp / "cpu"))
     finally:

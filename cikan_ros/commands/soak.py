@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from ..strict_json import dumps
-from . import add_config_args, config_from_args, int_at_least, seed_arg
+from . import add_config_args, add_layout_arg, config_from_args, int_at_least, seed_arg
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -36,6 +36,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", metavar="DIR", default=None,
                    help="keep the bags in DIR/run_NNN (default: a temporary directory, removed)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    add_layout_arg(p)
     add_config_args(p)
     p.set_defaults(func=run)
 
@@ -78,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
             row: dict[str, Any] = {"run": i + 1}
             try:
                 metrics = run_ros_mission(cfg, governor=args.governor, seed=args.seed, bag=bag,
-                                          governor_exec=args.governor_exec)
+                                          governor_exec=args.governor_exec, layout=args.layout)
                 ros = metrics.get("ros", {})
                 row.update(check_bag(bag, cfg), deadlines=metrics["lockstep_deadlines"],
                            violations=metrics["violations"], rtf=ros.get("rtf"), step_ms_p99=ros.get("step_ms_p99"),

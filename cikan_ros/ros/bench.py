@@ -11,11 +11,16 @@
   step where each longest step fell (0: the first-instant search).
 - ros_decision_ms_max: the longest governor decision of the mission (first-instant search or
   update), as governor_node timed it.
+- Every mission flies in the launcher's default process layout (``ros_layout``,
+  :data:`~cikan_ros.ros.graph_spec.DEFAULT_LAYOUT`: the simulator with the recorder, the governor
+  with the controller) but ``ros_separate_*``: the same mission with one process per node, the
+  comparison behind the default.
 - ros_cpu_per_step_ms: CPU time (user + system, every thread) of the graph's node processes per
   lockstep step, each counted over its spin (:func:`cikan_ros.ros.profile.spin_cpu`): the
   mission's less that of a mission of :data:`SHORT_STEPS` steps (the readiness handshake and the
-  acknowledgements at the end), over the difference in steps; ``ros_cpu_per_step_ms_<node>``
-  the same per node (sim, governor, controller, recorder). On a machine with few cores the
+  acknowledgements at the end), over the difference in steps; ``ros_cpu_per_step_ms_<process>``
+  the same per process (``recorder+sim``, ``governor+controller``; per node under
+  ``ros_separate_``). On a machine with few cores the
   lockstep's rtf is bound by it, not only by the chain of a step (sim -> governor -> controller
   -> sim). The processes' start-up (imports, loading kernels) is not in it: counted from the
   children's rusage it was ~6 s of CPU that moved by a second between missions, half a
@@ -42,6 +47,7 @@ from typing import Any, Callable
 
 from ..config import Config
 from ..errors import CikanError
+from .graph_spec import DEFAULT_LAYOUT
 
 
 #: Starts a process following a bag as it is recorded (the view: cikan_ros.view.live), given
@@ -52,6 +58,8 @@ Follower = Callable[[Path], Any]
 SHORT_STEPS = 10
 #: Lockstep missions flown with the chosen executor; the median one's figures are reported.
 LOCKSTEP_RUNS = 3
+#: The layout flown once beside the default one (``ros_separate_*``): one process per node.
+SEPARATE = "separate"
 
 
 def process_cpu_s(pid: int) -> float:
@@ -69,11 +77,12 @@ def step_of(k: float | None) -> int | None:
 
 
 def lockstep_figures(cfg: Config, executor: str, follow: Follower | None = None,
-                     seed: int | None = None) -> dict[str, Any]:
+                     seed: int | None = None, layout: str = DEFAULT_LAYOUT) -> dict[str, Any]:
     """rtf, step latency and wall times of one mission (the nominal start, or Monte Carlo start
-    ``seed``) with every node on ``executor``, with a ``follow`` process reading its bag when
-    given; ``cpu_s``: the CPU seconds of each node's spin by node (the follower's not counted),
-    ``steps``: the steps flown."""
+    ``seed``) with every node on ``executor``, in the processes of ``layout``, with a ``follow``
+    process reading its bag when given; ``cpu_s``: the CPU seconds of each process's spin by
+    process name (``sim_node``, ``recorder+sim``; the follower's not counted), ``steps``: the
+    steps flown."""
     from .launch import node_environment, run_ros_mission
     from .profile import CPU_ONLY_ENV, PROFILE_ENV, spin_cpu
 
@@ -83,7 +92,7 @@ def lockstep_figures(cfg: Config, executor: str, follow: Follower | None = None,
         with (node_environment("CIKAN_ROS_EXECUTOR", executor), node_environment(PROFILE_ENV, str(tmp / "cpu")),
               node_environment(CPU_ONLY_ENV, "1")):
             follower = follow(tmp / "bag") if follow is not None else None
-            m = run_ros_mission(cfg, governor="conventional", seed=seed, bag=tmp / "bag")
+            m = run_ros_mission(cfg, governor="conventional", seed=seed, bag=tmp / "bag", layout=layout)
         cpu = spin_cpu(tmp / "cpu")
         follower_cpu = process_cpu_s(follower.pid) if follower is not None else None
     finally:
@@ -115,20 +124,23 @@ def ros_section(cfg: Config, states: Any, _repeats: int, follow: Follower | None
     seed = states.seeds[0]
     flown = sorted((lockstep_figures(cfg, "events", seed=seed) for _ in range(LOCKSTEP_RUNS)), key=lambda f: f["rtf"])
     events = flown[len(flown) // 2]
-    short = lockstep_figures(cfg.replace(**{"mission.duration_s": SHORT_STEPS * cfg.control.period_s}), "events",
-                             seed=seed)
+    brief = cfg.replace(**{"mission.duration_s": SHORT_STEPS * cfg.control.period_s})
+    short = lockstep_figures(brief, "events", seed=seed)
     single = lockstep_figures(cfg, "single", seed=seed)
-    runs = {"ros": events, "ros_single": single}
+    separate = lockstep_figures(cfg, "events", seed=seed, layout=SEPARATE)
+    short_separate = lockstep_figures(brief, "events", seed=seed, layout=SEPARATE)
+    runs = {"ros": events, "ros_single": single, "ros_separate": separate}
     if follow is not None:
         runs["ros_view"] = lockstep_figures(cfg, "events", follow, seed=seed)
-    out: dict[str, Any] = {"ros_seed": seed, "ros_rtf_min": flown[0]["rtf"], "ros_rtf_max": flown[-1]["rtf"],
-                           "ros_lockstep_runs": len(flown)}
+    out: dict[str, Any] = {"ros_seed": seed, "ros_layout": DEFAULT_LAYOUT, "ros_rtf_min": flown[0]["rtf"],
+                           "ros_rtf_max": flown[-1]["rtf"], "ros_lockstep_runs": len(flown)}
     for prefix, figures in runs.items():
         cpu, steps = figures.pop("cpu_s"), figures.pop("steps")
-        per_node = {node.removesuffix("_node"): (cpu[node] - short["cpu_s"].get(node, 0.0)) / (steps - short["steps"]) * 1e3
-                    for node in cpu}
+        fixed = short_separate if prefix == "ros_separate" else short
+        per_node = {node.removesuffix("_node"): (cpu[node] - fixed["cpu_s"].get(node, 0.0))
+                    / (steps - fixed["steps"]) * 1e3 for node in cpu}
         figures["cpu_per_step_ms"] = sum(per_node.values())
-        if prefix == "ros":
+        if prefix in ("ros", "ros_separate"):
             figures.update({f"cpu_per_step_ms_{node}": v for node, v in sorted(per_node.items())})
         out.update({f"{prefix}_{k}": v for k, v in figures.items() if prefix == "ros" or k != "mission_success"})
     return out

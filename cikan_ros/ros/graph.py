@@ -32,6 +32,7 @@ import faulthandler
 import gc
 import math
 import os
+import signal
 import sys
 import time
 from pathlib import Path
@@ -430,20 +431,48 @@ def wait_acknowledged(node: Any, budget_s: float = ACK_BUDGET_S) -> list[str]:
 
 def run_node(factory: Callable[[Any], Any], args: list[str] | None = None,
              signal_handlers: bool = True, spec: Any = None, exit_process: bool = True) -> int:
-    """Run one node in this process: init, executor, spin, and the Jazzy shutdown pattern.
+    """Run one node in this process: init, executor, spin, and the Jazzy shutdown pattern
+    (:func:`run_nodes` with one node).
 
     ``args``: the command line with the program name first (default ``sys.argv``). With a
     :class:`~cikan_ros.ros.params.NodeSpec`, ``--help`` prints the node's usage and parameters
-    and returns 0 without starting rclpy. ``factory(context)`` builds the node; the process ends
-    when its ``done`` future completes (one is attached if the node has none), or on SIGINT or
-    SIGTERM (``signal_handlers``; else the node installs its own, as the recorder does to drain);
-    then it waits for its readers' acknowledgements (:func:`wait_acknowledged`), calls the node's
-    ``close()`` if it has one, and destroys it; with ``signal_handlers``, should that take more
-    than :data:`~cikan_ros.ros.graph_spec.STOP_WATCHDOG_S`, the stack of every thread goes to
-    stderr and the process exits with code 1. A node's ``open()``, if it has one, runs once the
-    parameters are checked. Returns the exit code: the node's ``exit_code`` (0 unless it gave
-    up), :data:`EXIT_BAD_INPUT` for bad input (unknown parameter, bad value, unreadable params
-    file or model) with one line on stderr.
+    and returns 0 without starting rclpy. ``factory(context)`` builds the node.
+    """
+    argv = list(sys.argv if args is None else args)
+    if spec is not None:
+        try:
+            if not parse_node_args(spec, argv[1:]):
+                return 0
+        except ConfigError as exc:
+            print(f"{spec.name}: error: {exc}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+    name = spec.name if spec is not None else Path(argv[0] if argv else "node").name
+    return run_nodes([factory], argv, signal_handlers, name, exit_process)
+
+
+def run_nodes(factories: list[Callable[[Any], Any]], argv: list[str], signal_handlers: bool = True,
+              name: str = "node", exit_process: bool = True, process: str | None = None,
+              help_hint: str | None = None) -> int:
+    """Run the nodes ``factories`` build in this process, on one executor, with the Jazzy
+    shutdown pattern; ``argv``: the command line, the program name first (its ``--ros-args``
+    part is rclpy's; every node reads the same parameters).
+
+    Each node's ``open()``, if it has one, runs once the parameters are checked (an override
+    none of the nodes declares is bad input). The mission lasts until every node with a ``done``
+    future of its own has completed it (the simulator; a node without one, as the governor,
+    runs until told to stop), or until SIGINT or SIGTERM (``signal_handlers``; else the node
+    installs its own, as a recorder alone in its process does to drain). Then a node that drains
+    (one with ``request_stop``: the recorder) is asked to, and spun until its ``done``: it keeps
+    what the others sent until the stream ends. Then each node waits for its readers'
+    acknowledgements (:func:`wait_acknowledged`), calls its ``close()`` if it has one, and is
+    destroyed; with ``signal_handlers``, should that take more than
+    :data:`~cikan_ros.ros.graph_spec.STOP_WATCHDOG_S`, the stack of every thread goes to stderr
+    and the process exits with code 1 (a draining recorder is not hurried: the watchdog starts
+    once it has drained). Returns the exit code: the first node's non-zero ``exit_code`` (0
+    unless one gave up), :data:`EXIT_BAD_INPUT` for bad input (unknown parameter, bad value,
+    unreadable params file or model) with one line on stderr, which starts with ``name`` and
+    names ``help_hint`` (default ``name --help``) for the parameters. ``process``: the name the
+    process's spin CPU is filed under (:class:`~cikan_ros.ros.profile.NodeProfile`; default ``name``).
     """
     import rclpy
     from rclpy.exceptions import ParameterException
@@ -451,18 +480,10 @@ def run_node(factory: Callable[[Any], Any], args: list[str] | None = None,
     from rclpy.signals import SignalHandlerOptions
     from rclpy.task import Future
 
-    argv = list(sys.argv if args is None else args)
-    name = spec.name if spec is not None else Path(argv[0] if argv else "node").name
-
     def bad_input(text: str) -> int:
         print(f"{name}: error: {text}", file=sys.stderr)
         return EXIT_BAD_INPUT
 
-    try:
-        if spec is not None and not parse_node_args(spec, argv[1:]):
-            return 0
-    except ConfigError as exc:
-        return bad_input(str(exc))
     try:
         # rclpy's own handlers would shut the context down at once, and a publisher of a shut-down
         # context can no longer wait for its readers: SIGINT/SIGTERM end the spin instead.
@@ -470,59 +491,83 @@ def run_node(factory: Callable[[Any], Any], args: list[str] | None = None,
     except RuntimeError as exc:  # rclpy's RCLError / UnknownROSArgsError: a malformed --ros-args part
         return bad_input(_rcl_message(exc))
     stopping: list[int] = []
+    drainers: list[Any] = []
+    watching: list[bool] = []
 
     def watch_the_stop() -> None:
         # graph_spec.STOP_WATCHDOG_S read now, so a test can shorten it in its own process
-        if signal_handlers:
+        if signal_handlers and not watching:
+            watching.append(True)
             faulthandler.dump_traceback_later(graph_spec.STOP_WATCHDOG_S, exit=True)
 
-    if signal_handlers:
-        import signal
+    def on_signal(signum: int, frame: Any) -> None:
+        if not stopping and not drainers:
+            watch_the_stop()
+        stopping.append(signum)
+        for d in drainers:
+            d.request_stop(signum, frame)
 
-        def on_signal(signum: int, _frame: Any) -> None:
-            if not stopping:
-                watch_the_stop()
-            stopping.append(signum)
+    def install_handlers() -> None:
+        if signal_handlers:
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                signal.signal(sig, on_signal)
 
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, on_signal)
-    node = executor = None
+    install_handlers()
+    nodes: list[Any] = []
+    executor = None
     code = 0
     try:
-        node = factory(None)
+        for factory in factories:
+            nodes.append(factory(None))
         # rclpy keeps the overrides a node received and the parameters it declared only privately.
-        problems = unknown_overrides(node._parameters, node._parameter_overrides,
-                                     command_line_names(ros_section(argv[1:])[1]))
+        declared = {k for n in nodes for k in n._parameters}
+        overrides = {k for n in nodes for k in n._parameter_overrides}
+        problems = unknown_overrides(declared, overrides, command_line_names(ros_section(argv[1:])[1]))
         if problems:
             raise ConfigError(f"unknown parameter{'s' if len(problems) > 1 else ''} {', '.join(problems)}"
-                              f" (the parameters of {name}: {name} --help)")
-        if getattr(node, "open", None) is not None:
-            node.open()  # what a node creates only once its parameters are known to be right
+                              f" (the parameters of {name}: {help_hint or name + ' --help'})")
+        for node in nodes:
+            if getattr(node, "open", None) is not None:
+                node.open()  # what a node creates only once its parameters are known to be right
+        drainers[:] = [n for n in nodes if getattr(n, "request_stop", None) is not None]
+        install_handlers()   # again: a recorder's open() installed its own, which a container's replaces
         executor = make_executor()
-        executor.add_node(node)
+        for node in nodes:
+            executor.add_node(node)
         # What the node loaded and built (modules, compiled kernels, messages, models) lives for the
         # whole process: out of the collector's sight, a step's allocations are all a collection scans.
         gc.collect()
         gc.freeze()
-        if getattr(node, "done", None) is None:
-            node.done = Future()
-        done = node.done
+        ends = [n.done for n in nodes if n not in drainers and getattr(n, "done", None) is not None]
+        forever = Future()   # what a process whose nodes never end by themselves spins on
+
+        def signalled() -> bool:
+            return bool(stopping) or any(d.stopping for d in drainers)
+
         # In 0.5-s slices: the EventsExecutor (rclpy 7.1.6 wheels) fires timers only inside a spin
         # with a timeout, and a signal's handler runs between them.
-        with NodeProfile(name):  # cikan profile: CIKAN_PROFILE_DIR set (cikan_ros.ros.profile)
-            while rclpy.ok() and not done.done() and not stopping:
-                executor.spin_until_future_complete(done, timeout_sec=0.5)
-        code = int(getattr(node, "exit_code", 0))
+        with NodeProfile(process or name):  # cikan profile: CIKAN_PROFILE_DIR set (cikan_ros.ros.profile)
+            while rclpy.ok() and not signalled():
+                pending = [f for f in ends if not f.done()]
+                if ends and not pending:
+                    break
+                executor.spin_until_future_complete(pending[0] if pending else forever, timeout_sec=0.5)
+            for d in drainers:
+                if not d.stopping:
+                    d.request_stop(0, None)   # the mission ended: drain what the others sent
+                while rclpy.ok() and not d.done.done():
+                    executor.spin_until_future_complete(d.done, timeout_sec=0.5)
+        code = next((c for c in (int(getattr(n, "exit_code", 0)) for n in nodes) if c), 0)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (CikanError, ParameterException) as exc:
         code = bad_input(str(exc))
     finally:
-        if not stopping:
-            watch_the_stop()   # the mission ended: the node ends from here on its own
-        if node is not None:
+        watch_the_stop()   # the mission ended (and any recorder drained): the process ends from here
+        for node in nodes:
             if rclpy.ok():
                 wait_acknowledged(node)
+        for node in nodes:
             close = getattr(node, "close", None)
             if close is not None:
                 close()

@@ -135,22 +135,70 @@ def required_publishers(topic: str, peers: Iterable[str]) -> int:
 # -- nodes --------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class GraphNode:
-    """One node of the graph: its peer name, the executable (console script) and its module."""
+    """One node of the graph: its peer name, the executable (console script), its module (run
+    with ``python -m``) and its node class (``module:Class``: what a container of several nodes
+    builds, :mod:`cikan_ros.ros.container`)."""
 
     name: str
     executable: str
     module: str
+    node_class: str
 
 
 #: The nodes in start order: the recorder first (it must hear everything), the simulator last.
 NODES: tuple[GraphNode, ...] = (
-    GraphNode("recorder", "recorder_node", "cikan_ros.ros.recorder_node"),
-    GraphNode("governor", "governor_node", "governor_node"),
-    GraphNode("controller", "controller_node", "controller_node"),
-    GraphNode("sim", "sim_node", "sim_node"),
+    GraphNode("recorder", "recorder_node", "cikan_ros.ros.recorder_node",
+              "cikan_ros.ros.recorder_node:RecorderNode"),
+    GraphNode("governor", "governor_node", "governor_node", "governor_node.node:GovernorNode"),
+    GraphNode("controller", "controller_node", "controller_node", "controller_node.node:ControllerNode"),
+    GraphNode("sim", "sim_node", "sim_node", "sim_node.node:SimNode"),
 )
 #: Peer name -> node.
 NODE_BY_NAME: dict[str, GraphNode] = {n.name: n for n in NODES}
+
+
+def load_object(where: str) -> Any:
+    """The object ``module:attribute`` names (a node's class)."""
+    module, _, attr = where.partition(":")
+    return getattr(importlib.import_module(module), attr)
+
+
+# -- processes ----------------------------------------------------------------------------------
+#: How the nodes are grouped into processes (each group: one process, one executor; a group of
+#: several runs as ``cikan_container NODE...``, :mod:`cikan_ros.ros.container`). Messages between
+#: nodes of one process skip the network (Fast DDS delivers them within the process): measured
+#: with ``cikan bench`` (docs/ros_graph.md, "Processes"), "paired" flies the lockstep ~1.6x
+#: faster than "separate" on 2 cores for ~0.6x the CPU per step. "paired", the default: the
+#: simulator with the recorder (the plant and its log: most messages of a step go from one to the
+#: other) and the governor with the controller (the flight software); a governor that crashes
+#: (a user's model, a foreign executable) takes the controller with it, never the plant or the
+#: recording. "separate": one process per node (each fault alone; what ``cikan profile``
+#: measures per node). "single": the whole graph in one process.
+LAYOUTS: dict[str, tuple[tuple[str, ...], ...]] = {
+    "paired": (("recorder", "sim"), ("governor", "controller")),
+    "separate": (("recorder",), ("governor",), ("controller",), ("sim",)),
+    "single": (("recorder", "governor", "controller", "sim"),),
+}
+DEFAULT_LAYOUT = "paired"
+
+
+def processes(layout: str, apart: Iterable[str] = ()) -> list[tuple[str, ...]]:
+    """The process groups of ``layout`` in start order (the recorder's first), with each node of
+    ``apart`` (one run by another executable) in a process of its own."""
+    if layout not in LAYOUTS:
+        raise ValueError(f"unknown process layout {layout!r}; known: {', '.join(LAYOUTS)}")
+    apart = set(apart)
+    out: list[tuple[str, ...]] = []
+    for group in LAYOUTS[layout]:
+        rest = tuple(n for n in group if n not in apart)
+        out += [(n,) for n in group if n in apart] + ([rest] if rest else [])
+    return out
+
+
+def process_name(group: Iterable[str]) -> str:
+    """A process's name: its node's executable, or its nodes' peer names joined by '+'."""
+    group = tuple(group)
+    return NODE_BY_NAME[group[0]].executable if len(group) == 1 else "+".join(group)
 
 #: Exit code of a node started with bad input (unknown parameter, bad value, unreadable file), as `cikan`.
 EXIT_BAD_INPUT = 2

@@ -1,7 +1,9 @@
 """The graph launcher behind ``cikan mission`` (ROS mode) and the ROS benchmark.
 
-Starts recorder_node, governor_node, controller_node and sim_node as separate processes (fresh
-interpreters, own process groups) on an isolated domain: a ROS_DOMAIN_ID that no other live graph
+Starts recorder_node, governor_node, controller_node and sim_node in the processes of a layout
+(:data:`~cikan_ros.ros.graph_spec.LAYOUTS`; by default the simulator with the recorder and the
+governor with the controller, two processes; ``separate``: one each; fresh interpreters, own
+process groups) on an isolated domain: a ROS_DOMAIN_ID that no other live graph
 of the machine uses (leased for the graph's lifetime, :mod:`cikan_ros.ros.domain`), DDS over
 UDP on the loopback interface only (:func:`dds_environment`) and a private ROS_LOG_DIR. Every node gets the same
 params file (the mission's configuration plus node parameters); ``governor_exec`` runs any
@@ -40,8 +42,8 @@ from ..progress import Bar
 from ..tsg import Predictor
 from .bag_reader import SIM_TOPICS, check_messages, read_bag, recorded_metrics, sim_summary
 from .domain import lease_domain
-from .graph_spec import (ACCEL_CMD, ACK_BUDGET_S, ARGUMENTS, CLOCK, EXIT_BAD_INPUT, MAX_DRAIN_S, NODE_BY_NAME,
-                         NODES, TIME_SHIFT, UTC_FORMAT, node_parameters)
+from .graph_spec import (ACCEL_CMD, ACK_BUDGET_S, ARGUMENTS, CLOCK, DEFAULT_LAYOUT, EXIT_BAD_INPUT, MAX_DRAIN_S,
+                         NODE_BY_NAME, TIME_SHIFT, UTC_FORMAT, node_parameters, process_name, processes)
 
 
 def _nest(flat: dict[str, Any]) -> dict[str, Any]:
@@ -125,7 +127,8 @@ def exec_environment(env: dict[str, str]) -> dict[str, str]:
 
 @dataclass
 class Graph:
-    """Running node processes of one mission (see the module docstring)."""
+    """Running node processes of one mission (see the module docstring). ``procs`` and ``logs``
+    by node name: the nodes of one process share its Popen and its log."""
 
     workdir: Path
     env: dict[str, str]
@@ -137,22 +140,35 @@ class Graph:
     #: Descriptors every node inherits: the domain lease's, so the lease lasts while any node runs.
     pass_fds: tuple[int, ...] = ()
 
-    def argv(self, name: str) -> list[str]:
-        """Command line of a node: its module (``python -m``, :data:`graph_spec.NODES
-        <cikan_ros.ros.graph_spec.NODES>`) or its replacement + ``--ros-args --params-file``."""
-        head = self.commands.get(name) or [sys.executable, "-m", NODE_BY_NAME[name].module]
+    def argv(self, group: str | Iterable[str]) -> list[str]:
+        """Command line of a process (a node's name, or several): a node's module (``python -m``,
+        :data:`graph_spec.NODES <cikan_ros.ros.graph_spec.NODES>`), its replacement, or for several
+        nodes the container (:mod:`cikan_ros.ros.container`), + ``--ros-args --params-file``."""
+        group = (group,) if isinstance(group, str) else tuple(group)
+        if len(group) > 1:
+            head = [sys.executable, "-m", "cikan_ros.ros.container", *group]
+        else:
+            head = self.commands.get(group[0]) or [sys.executable, "-m", NODE_BY_NAME[group[0]].module]
         return [*head, "--ros-args", "--params-file", str(self.params)]
 
-    def start(self, names: Iterable[str]) -> None:
-        for name in names:
-            log = self.workdir / f"{name}.log"
-            self.logs[name] = log
-            env = exec_environment(self.env) if name in self.commands else self.env
+    def start(self, groups: Iterable[str | Iterable[str]]) -> None:
+        """Start one process per group of node names (:func:`graph_spec.processes
+        <cikan_ros.ros.graph_spec.processes>`; a name alone: that node in a process of its own)."""
+        for group in ((g,) if isinstance(g, str) else tuple(g) for g in groups):
+            log = self.workdir / f"{process_name(group)}.log"
+            env = exec_environment(self.env) if group[0] in self.commands else self.env
             with open(log, "wb") as out:
-                self.procs[name] = subprocess.Popen(
-                    self.argv(name), env=env, stdout=out, stderr=subprocess.STDOUT,
+                proc = subprocess.Popen(
+                    self.argv(group), env=env, stdout=out, stderr=subprocess.STDOUT,
                     stdin=subprocess.DEVNULL, start_new_session=True, preexec_fn=die_with_parent(),
                     pass_fds=self.pass_fds)
+            for name in group:
+                self.procs[name], self.logs[name] = proc, log
+
+    def process_of(self, name: str) -> str:
+        """What a node runs in, for messages: ``sim_node``, or ``sim_node (in recorder+sim)``."""
+        group = [n for n, p in self.procs.items() if p is self.procs.get(name)]
+        return f"{name}_node" if len(group) <= 1 else f"{name}_node (in {process_name(group)})"
 
     def tail(self, name: str, lines: int = 15) -> str:
         try:
@@ -168,23 +184,25 @@ class Graph:
         return text if len(text) <= 300 else text[:297] + "..."
 
     def stop(self, names: Iterable[str], timeout_s: float = 10.0) -> None:
-        """SIGINT the named children, wait, escalate to SIGKILL after ``timeout_s``."""
-        names = [n for n in names if n in self.procs]
-        for n in names:
-            if self.procs[n].poll() is None:
-                self.procs[n].send_signal(signal.SIGINT)
+        """SIGINT the processes of the named nodes, wait, escalate to SIGKILL after ``timeout_s``."""
+        procs = list({id(self.procs[n]): self.procs[n] for n in names if n in self.procs}.values())
+        for p in procs:
+            if p.poll() is None:
+                p.send_signal(signal.SIGINT)
         deadline = time.monotonic() + timeout_s
-        for n in names:
+        for p in procs:
             try:
-                self.procs[n].wait(max(0.0, deadline - time.monotonic()))
+                p.wait(max(0.0, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
-                self.procs[n].kill()
-                self.procs[n].wait()
+                p.kill()
+                p.wait()
 
     def stop_all(self) -> None:
-        """Producers first, the recorder last so the bag gets everything and closes."""
+        """Producers first, the recorder's process last so the bag gets everything and closes."""
         # each waits for its readers' acknowledgements before it ends (graph.wait_acknowledged)
-        self.stop(["sim", "governor", "controller"], timeout_s=ACK_BUDGET_S + 10.0)
+        recorder = self.procs.get("recorder")
+        self.stop([n for n in ("sim", "governor", "controller") if self.procs.get(n) is not recorder],
+                  timeout_s=ACK_BUDGET_S + 10.0)
         self.stop(["recorder"], timeout_s=MAX_DRAIN_S + 30.0)   # it drains all it holds, then closes
 
 
@@ -253,7 +271,8 @@ def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | Non
                     overrides: list[str] | None = None, *, stop_on_dock: bool = False,
                     node_params: dict[str, Any] | None = None, timeout_s: float = 3600.0,
                     keep_logs: bool = False, on_started: Any = None,
-                    governor_exec: str | None = None, progress: bool = False) -> dict[str, Any]:
+                    governor_exec: str | None = None, progress: bool = False,
+                    layout: str = DEFAULT_LAYOUT) -> dict[str, Any]:
     """Run one lockstep mission as the ROS graph; return the recorded metrics
     (:func:`cikan_ros.ros.bag_reader.recorded_metrics`) + ``bag`` + ``ros``.
 
@@ -266,9 +285,15 @@ def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | Non
     CikanError line naming the node, its exit code, its last error line and where the logs are;
     a bag without a message is removed then, a bag with messages is kept (closed, readable).
     ``progress``: show a progress bar of the steps the recorder has written to the bag
-    (:func:`recorded_steps_so_far`).
+    (:func:`recorded_steps_so_far`). ``layout``: how the nodes share processes
+    (:data:`~cikan_ros.ros.graph_spec.LAYOUTS`; a governor run by ``governor_exec`` has a
+    process of its own in any).
     """
     commands = {"governor": exec_command(governor_exec)} if governor_exec is not None else {}
+    try:
+        groups = processes(layout, commands)
+    except ValueError as exc:
+        raise CikanError(str(exc)) from None
     if governor_exec is not None:
         governor = exec_governor_name(governor_exec)
     bag_path = Path(bag) if bag is not None else default_bag_path(governor)
@@ -294,7 +319,7 @@ def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | Non
     def exited(name: str, rc: int) -> str:
         nonlocal bad_input
         bad_input = rc == EXIT_BAD_INPUT
-        who = f"governor ({governor})" if name in commands else f"{name}_node"
+        who = f"governor ({governor})" if name in commands else graph.process_of(name)
         return f"{who} exited with code {rc}: {graph.reason(name)}"
 
     main_thread = threading.current_thread() is threading.main_thread()
@@ -304,7 +329,7 @@ def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | Non
               progress).start()
     bar.update(0, note="starting the nodes")
     try:
-        graph.start(n.name for n in NODES)
+        graph.start(groups)
         if on_started is not None:
             on_started(graph)
         sim = graph.procs["sim"]
@@ -312,7 +337,7 @@ def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | Non
         while sim.poll() is None and failure is None:
             for name, proc in graph.procs.items():
                 rc = proc.poll()
-                if name != "sim" and rc is not None and rc > 0:
+                if proc is not sim and rc is not None and rc > 0:
                     failure = exited(name, rc)
                     break
             now = time.perf_counter()
@@ -353,6 +378,7 @@ def run_ros_mission(cfg: Config, governor: str = "conventional", seed: int | Non
     _, metrics = recorded_metrics(bag_path, cfg, governor, msgs)
     metrics["bag"] = str(bag_path)
     metrics["ros"] = {"launch_wall_s": wall, **metrics.get("ros", {}), "domain_id": lease.domain,
+                      "layout": layout, "processes": [process_name(g) for g in groups],
                       "exit_codes": {n: p.returncode for n, p in graph.procs.items()}}
     metrics = lockstep_verdict(metrics)
     if not metrics["lockstep_deadlines"]:

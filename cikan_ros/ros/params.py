@@ -221,6 +221,13 @@ def parse_node_args(spec: NodeSpec, args: Sequence[str]) -> bool:
     if extra:
         raise ConfigError(f"unrecognised arguments {' '.join(extra)} (ROS arguments go after --ros-args; "
                           f"see {spec.name} --help)")
+    check_params_files(ros)
+    return True
+
+
+def check_params_files(ros: Sequence[str]) -> None:
+    """ConfigError naming the first params file of the ``--ros-args`` part ``ros`` that is
+    missing or not YAML."""
     for path in params_files(ros):
         try:
             yaml.safe_load(Path(path).read_text())
@@ -228,7 +235,6 @@ def parse_node_args(spec: NodeSpec, args: Sequence[str]) -> bool:
             raise ConfigError(f"params file {path}: {exc.strerror or exc}") from None
         except yaml.YAMLError as exc:
             raise ConfigError(f"params file {path} is not valid YAML: {' '.join(str(exc).split())}") from None
-    return True
 
 
 def unknown_overrides(declared: Iterable[str], overrides: Iterable[str], command_line: Iterable[str]
