@@ -296,6 +296,57 @@ def test_bag_writer_flushed_bag_survives_a_crash(tmp_path: Path) -> None:
         BagWriter(bag)
 
 
+def test_bag_writer_flushing_in_the_background_writes_the_same_file(tmp_path: Path,
+                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    """A flush in its own thread (the recorder's): messages written while it runs are held, then
+    written in arrival order; another flush meanwhile does nothing; the closed file is byte for
+    byte the one flushing in place gives, and reads back with rosbags."""
+    import threading
+
+    from rosbags.highlevel import AnyReader
+
+    def fill(writer: BagWriter, gate: threading.Event | None) -> None:
+        writer.add_topic("/clock", "rosgraph_msgs/msg/Clock", [qos_dict(QOS_STREAM)])
+        for i in (5, 3, 4, 1, 2):
+            writer.write("/clock", serialize_message(cv.clock_msg(i * 10**9)), i * 10**9)
+        writer.flush()
+        for i in (9, 8, 7, 6):
+            writer.write("/clock", serialize_message(cv.clock_msg(i * 10**9)), i * 10**9)
+            if gate is not None:
+                writer.flush()      # while the first flush runs: nothing
+        if gate is not None:
+            assert len(writer._held) == 4 and writer.flushed["/clock"] == 0   # held, the flush not done
+            gate.set()
+        writer.close()
+
+    fill(BagWriter(tmp_path / "in_place"), None)
+    gate = threading.Event()
+    background = BagWriter(tmp_path / "background", background=True)
+    flush = background._flush
+    monkeypatch.setattr(background, "_flush", lambda: (gate.wait(30.0), flush()))
+    fill(background, gate)
+    files = [next((tmp_path / name).glob("*.mcap")).read_bytes() for name in ("in_place", "background")]
+    assert files[0] == files[1]
+    with AnyReader([tmp_path / "background"]) as reader:
+        assert [t // 10**9 for _, t, _ in reader.messages()] == list(range(1, 10))
+
+
+def test_bag_writer_a_failed_background_flush_is_raised_where_the_bag_is_used(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    writer = BagWriter(tmp_path / "bag", background=True)
+    writer.add_topic("/clock", "rosgraph_msgs/msg/Clock", [qos_dict(QOS_STREAM)])
+    writer.write("/clock", serialize_message(cv.clock_msg(10**9)), 10**9)
+
+    def full() -> None:
+        raise OSError(28, "No space left on device")
+    monkeypatch.setattr(writer, "_flush", full)
+    writer.flush()
+    with pytest.raises(OSError, match="No space left"):
+        writer.settle()
+    writer.close()   # closes all the same
+    assert writer.closed
+
+
 def test_bag_writer_as_a_context_manager_closes_the_bag_on_an_exception(tmp_path: Path) -> None:
     """``with BagWriter(...)``: an exception inside the block leaves a closed, complete bag of what
     was written (no flush asked for), read back with rosbags and mcap; the exception propagates."""

@@ -5,7 +5,10 @@ Messages are logged at their own stamp (header.stamp, the Clock's time, or a Mar
 marker's): the bag is a sim-time record in which the messages of step k share t_k, whatever
 their arrival order.
 Chunks are flushed every ``recorder.flush_period_s`` (wall) or ``recorder.chunk_bytes``, so a
-crash loses at most the chunk in progress (see :mod:`cikan_ros.ros.bag_writer`). SIGINT/SIGTERM: the
+crash loses at most the chunk in progress (see :mod:`cikan_ros.ros.bag_writer`), each in a thread
+of the bag's own (``BagWriter(background=True)``): the executor, which in the default process
+layout also runs the simulator, never waits for a flush; the process then hands the GIL from
+thread to thread every :data:`SWITCH_INTERVAL_S` instead of Python's 5 ms. SIGINT/SIGTERM: the
 recorder keeps taking messages until none came for ``recorder.drain_s`` (at most
 :data:`MAX_DRAIN_S`), then closes the bag.
 The governor's announcements (/tsg/governor, latched) go into the bag's metadata (custom_data
@@ -18,6 +21,7 @@ from __future__ import annotations
 
 import json
 import signal
+import sys
 import time
 from datetime import datetime, timezone
 from pathlib import Path
@@ -38,6 +42,9 @@ from .params import NodeSpec, declare_config, declare_parameters, plain
 from ..telemetry import dictionary, to_json
 
 NAME = "recorder_node"
+#: The process's GIL switch interval (s) once the recorder flushes in the background: the
+#: longest a callback of the executor waits while the flush thread runs Python.
+SWITCH_INTERVAL_S = 0.0002
 #: Parameters: the groups recorder and graph of config/nodes.yaml, and the mission configuration
 #: (for the bag).
 SPEC = NodeSpec(NAME, __doc__, ("recorder", "graph"))
@@ -78,7 +85,8 @@ class RecorderNode(Node):
     def open(self) -> None:
         """Create the bag and subscribe (called once the node's parameters are checked)."""
         self.bag = BagWriter(self.bag_dir, self.chunk_bytes,
-                             {"cikan_ros.config": json.dumps(self.cfg.flat(), sort_keys=True)})
+                             {"cikan_ros.config": json.dumps(self.cfg.flat(), sort_keys=True)}, background=True)
+        sys.setswitchinterval(SWITCH_INTERVAL_S)
         self.bag.add_telemetry(to_json(dictionary(self.cfg), self.cfg))
         # As a peer of the graph it reads every topic: the other peers wait for it as a reader of
         # each (graph.required_readers) before they are ready; it writes recorder.topics.
@@ -119,6 +127,7 @@ class RecorderNode(Node):
         if self.announced and self.announced[-1] == info:
             return
         self.announced.append(info)
+        self.bag.settle()   # a flush in the background reads custom_data
         self.bag.custom_data["cikan_ros.governor"] = " -> ".join(a["governor"] for a in self.announced)
         self.bag.custom_data["cikan_ros.governor_announcements"] = json.dumps(self.announced)
         self.bag.write_metadata()
@@ -164,6 +173,4 @@ def main(args: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    import sys
-
     sys.exit(main())
