@@ -73,6 +73,8 @@ def test_cpu_only_counts_the_spin_without_a_profile(tmp_path, monkeypatch):
     page = markdown(table, 10, 1.0, "cikan profile", flown_wall_s=0.5)
     assert "| flown |" in page and "0.50 s of lockstep wall time" in page
     assert "| flown |" not in markdown(profile_table(tmp_path / "prof", steps=10), 10, 1.0, "cikan profile")
+    assert "One lockstep mission of 10 steps in process layout `separate`" in markdown(
+        table, 10, 1.0, "cikan profile", 0.5, "separate")
 
 
 def test_no_profile_without_the_environment_variable(tmp_path, monkeypatch):

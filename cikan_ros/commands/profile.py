@@ -61,8 +61,8 @@ def run(args: argparse.Namespace) -> int:
         print(dumps({"steps": steps, "lockstep_wall_s": wall, "flown_lockstep_wall_s": flown_wall,
                      "us_per_step": table}))
     else:
-        print(markdown(table, steps, wall, "cikan profile", flown_wall), end="")
+        print(markdown(table, steps, wall, "cikan profile", flown_wall, args.layout), end="")
     if args.out:
         command = "cikan profile " + " ".join(shlex.quote(a) for a in sys.argv[2:])
-        Path(args.out).write_text(markdown(table, steps, wall, command, flown_wall))
+        Path(args.out).write_text(markdown(table, steps, wall, command, flown_wall, args.layout))
     return 0

@@ -15,7 +15,7 @@ from every function's own time, classified by where it lives:
 - ``other``: the rest of the interpreter's time (logging, the standard library).
 
 The process's other threads (DDS's receive and event threads, rclpy's) are the process CPU less
-the main thread's. cProfile adds its own cost to every Python call (2.6x the graph's CPU per
+the main thread's. cProfile adds its own cost to every Python call (2.1x the graph's CPU per
 step here, docs/ros_profile.md), so its stages are shares to read; what each node costs as flown comes from a
 mission without it: with :data:`CPU_ONLY_ENV` also set, each node only counts the CPU seconds of
 its spin (:func:`spin_cpu`), which ``cikan profile`` shows beside the stages and ``cikan bench``
@@ -142,12 +142,13 @@ def profile_table(directory: Path, steps: int, flown: dict[str, float] | None = 
 
 
 def markdown(table: dict[str, dict[str, float]], steps: int, wall_s: float, command: str,
-             flown_wall_s: float | None = None) -> str:
-    """The profile page: CPU microseconds per step, per node and stage (and as flown, without the
-    profiler, when the table has it)."""
+             flown_wall_s: float | None = None, layout: str | None = None) -> str:
+    """The profile page: CPU microseconds per step, per node process and stage (and as flown,
+    without the profiler, when the table has it); ``layout``: the process layout flown, named."""
     flown = all("flown" in r for r in table.values()) and bool(table)
     cols = STAGES + ("main", "threads", "process") + (("flown",) if flown else ())
-    text = (f"Regenerate: `{command}` (docs/usage.md, `cikan profile`). One lockstep mission of {steps} steps, "
+    where = f" in process layout `{layout}` (cikan_ros.ros.graph_spec.LAYOUTS)" if layout else ""
+    text = (f"Regenerate: `{command}` (docs/usage.md, `cikan profile`). One lockstep mission of {steps} steps{where}, "
             f"{wall_s:.2f} s of lockstep wall time under the profiler; CPU microseconds per step (main thread "
             "by stage, from each function's own time; other threads; the whole process).")
     if flown:
