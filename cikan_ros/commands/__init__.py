@@ -48,12 +48,11 @@ def add_config_args(parser: argparse.ArgumentParser) -> None:
 
 def add_layout_arg(parser: argparse.ArgumentParser, default: str | None = None) -> None:
     """``--layout``: how the ROS graph's nodes share processes (graph_spec.LAYOUTS)."""
-    from ..ros.graph_spec import DEFAULT_LAYOUT, LAYOUTS
+    from ..ros.graph_spec import DEFAULT_LAYOUT, LAYOUTS, layouts_text
 
     default = default or DEFAULT_LAYOUT
-    groups = "; ".join(f"{k}: {' | '.join('+'.join(g) for g in v)}" for k, v in LAYOUTS.items())
     parser.add_argument("--layout", choices=list(LAYOUTS), default=default,
-                        help=f"ROS run: the nodes' processes ({groups}; default {default}; "
+                        help=f"ROS run: the nodes' processes ({layouts_text('+')}; default {default}; "
                              'docs/ros_graph.md, "Processes")')
 
 

@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
                                      layout=args.layout)
         with node_environment(PROFILE_ENV, str(tmp / "prof")):
             m = run_ros_mission(cfg, governor=args.governor, seed=args.seed, bag=tmp / "bag",
-                                     layout=args.layout)
+                                layout=args.layout)
         steps = round(cfg.mission.duration_s / cfg.control.period_s)
         table = profile_table(tmp / "prof", steps, spin_cpu(tmp / "cpu"))
     finally:

@@ -16,7 +16,7 @@ import sys
 
 from ..errors import ConfigError
 from .graph import run_nodes
-from .graph_spec import EXIT_BAD_INPUT, LAYOUTS, NODE_BY_NAME, load_object, process_name
+from .graph_spec import EXIT_BAD_INPUT, NODE_BY_NAME, layouts_text, load_object, process_name
 from .params import check_params_files, ros_section
 
 NAME = "cikan_container"
@@ -26,11 +26,10 @@ def parse(args: list[str]) -> list[str] | None:
     """The node names of a container's command line (``args`` without the program name), None
     after ``--help``; ConfigError for an unknown or repeated node, or none."""
     own, _ = ros_section(args)
-    layouts = "; ".join(f"{k}: {' | '.join(' '.join(g) for g in v)}" for k, v in LAYOUTS.items())
     parser = argparse.ArgumentParser(
         prog=NAME, usage=f"{NAME} [-h] NODE [NODE ...] [--ros-args [-p NAME:=VALUE]... [--params-file FILE]...]",
         description=__doc__.strip().split("\n\n")[0] + f" Nodes: {', '.join(NODE_BY_NAME)}.",
-        epilog=f"The launcher's process layouts ({layouts}). Each node's parameters: NODE_node --help.",
+        epilog=f"The launcher's process layouts ({layouts_text(' ')}). Each node's parameters: NODE_node --help.",
         exit_on_error=False, add_help=False)
     parser.add_argument("-h", "--help", action="store_true", help="show this help and exit")
     parser.add_argument("nodes", nargs="*", metavar="NODE")

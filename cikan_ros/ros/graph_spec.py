@@ -195,9 +195,19 @@ def processes(layout: str, apart: Iterable[str] = ()) -> list[tuple[str, ...]]:
     return out
 
 
-def process_name(group: Iterable[str]) -> str:
+def as_group(nodes: str | Iterable[str]) -> tuple[str, ...]:
+    """A process's node names: a name alone, or several."""
+    return (nodes,) if isinstance(nodes, str) else tuple(nodes)
+
+
+def layouts_text(joiner: str) -> str:
+    """Every layout and its processes, for help texts: ``paired: recorder<joiner>sim | ...; ...``."""
+    return "; ".join(f"{k}: {' | '.join(joiner.join(g) for g in v)}" for k, v in LAYOUTS.items())
+
+
+def process_name(group: str | Iterable[str]) -> str:
     """A process's name: its node's executable, or its nodes' peer names joined by '+'."""
-    group = tuple(group)
+    group = as_group(group)
     return NODE_BY_NAME[group[0]].executable if len(group) == 1 else "+".join(group)
 
 #: Exit code of a node started with bad input (unknown parameter, bad value, unreadable file), as `cikan`.

@@ -43,7 +43,8 @@ from ..tsg import Predictor
 from .bag_reader import SIM_TOPICS, check_messages, read_bag, recorded_metrics, sim_summary
 from .domain import lease_domain
 from .graph_spec import (ACCEL_CMD, ACK_BUDGET_S, ARGUMENTS, CLOCK, DEFAULT_LAYOUT, EXIT_BAD_INPUT, MAX_DRAIN_S,
-                         NODE_BY_NAME, TIME_SHIFT, UTC_FORMAT, node_parameters, process_name, processes)
+                         NODE_BY_NAME, TIME_SHIFT, UTC_FORMAT, as_group, node_parameters, process_name,
+                         processes)
 
 
 def _nest(flat: dict[str, Any]) -> dict[str, Any]:
@@ -144,7 +145,7 @@ class Graph:
         """Command line of a process (a node's name, or several): a node's module (``python -m``,
         :data:`graph_spec.NODES <cikan_ros.ros.graph_spec.NODES>`), its replacement, or for several
         nodes the container (:mod:`cikan_ros.ros.container`), + ``--ros-args --params-file``."""
-        group = (group,) if isinstance(group, str) else tuple(group)
+        group = as_group(group)
         if len(group) > 1:
             head = [sys.executable, "-m", "cikan_ros.ros.container", *group]
         else:
@@ -154,7 +155,7 @@ class Graph:
     def start(self, groups: Iterable[str | Iterable[str]]) -> None:
         """Start one process per group of node names (:func:`graph_spec.processes
         <cikan_ros.ros.graph_spec.processes>`; a name alone: that node in a process of its own)."""
-        for group in ((g,) if isinstance(g, str) else tuple(g) for g in groups):
+        for group in map(as_group, groups):
             log = self.workdir / f"{process_name(group)}.log"
             env = exec_environment(self.env) if group[0] in self.commands else self.env
             with open(log, "wb") as out:
