@@ -15,7 +15,7 @@ from cikan_ros.dynamics import two_body_rhs
 from cikan_ros.errors import StateError
 from cikan_ros.orbit import (P_E, P_M0, P_N, ROTATE_MAX, KeplerOrbit, _rotated, eccentric_anomaly_kernel,
                              elements_to_state, state_from_anomaly_kernel, state_to_elements, state_warm_kernel,
-                             vnb_frame)
+                             vnb_frame, wrap_anomaly_kernel)
 
 MU = 398600.4418
 
@@ -149,6 +149,22 @@ def test_a_chain_of_warm_samples_stays_on_kepler_motion(e):
             ref = orbit.state(j * ts)
             worst_x = max(worst_x, _relative_error(x, ref))
     assert worst_sc < 2e-12 and worst_x < 1e-12
+
+
+_TWO_PI = 2.0 * math.pi
+
+
+@settings(max_examples=500, deadline=None)
+@given(a=st.one_of(st.floats(-math.pi, 3.0 * math.pi), st.floats(allow_nan=True, allow_infinity=True),
+                   st.sampled_from([-math.pi, 0.0, -0.0, math.pi, 3.0 * math.pi, math.pi - 1e-16,
+                                    3.0 * math.pi - 4e-16, math.nextafter(-math.pi, 0.0),
+                                    math.nextafter(3.0 * math.pi, 0.0), -4.0, 1e6, -1e6])))
+def test_wrapping_an_anomaly_is_the_python_remainder_bit_for_bit(a):
+    """wrap_anomaly_kernel(a) is (a + pi) % (2 pi) - pi to the bit (Python's float remainder, a
+    reference independent of the kernel's fast paths), on the paths' edges, far outside and NaN."""
+    ref = (a + math.pi) % _TWO_PI - math.pi
+    got = wrap_anomaly_kernel(a)
+    assert (math.isnan(got) and math.isnan(ref)) or got.hex() == ref.hex()
 
 
 @settings(max_examples=300, deadline=None)
