@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 EXTRAS := ros,learn,report,view,dev
 
-.PHONY: install browser run test test-avx2 bench montecarlo results robustness corners coverage coverage-ancillary controller-sweep models models-prev scenario-data scenario-models scenario-result scenario-results scenario-index scenario-bench bad-networks clean
+.PHONY: install browser run test test-avx2 bench montecarlo results robustness corners coverage coverage-ancillary controller-sweep models models-prev scenario-data scenario-models scenario-result scenario-results scenario-index scenario-bench scenario-ceiling bad-networks clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -269,6 +269,21 @@ bad-networks: $(STAMP)
 		--governor conventional,cikan,relu,$(BAD)/random-cikan,$(BAD)/barely-relu,models/leo/cikan
 	$(BIN)/cikan report $(BAD)/mc --tables-only --out docs/results/bad_networks \
 		--title "Networks that do not fit, under the keep rule: Table 2 starts, $(ROBUST_RUNS) runs"
+
+# The ceiling of any governor that tracks pi* (an oracle that verifies pi* once, nothing where pi* =
+# tau_prev) against the conventional TSG, per scenario, side and Verify mode: cikan bench's
+# conventional section alone (minutes, not hours), the JSON of each in docs/results/scenarios/ceiling/
+# (named as scenario-bench's files) and their table, README.md there.
+scenario-ceiling: $(STAMP)
+	mkdir -p docs/results/scenarios/ceiling
+	for s in $(SCENARIOS); do for a in $(APPROACHES); do \
+	  $(BIN)/cikan bench --section conventional --scenario $$s --set mission.approach=$$a --missions $(BENCH_MISSIONS) \
+	    --json > docs/results/scenarios/ceiling/$$s-$$a.json || exit 1; \
+	  $(BIN)/cikan bench --section conventional --scenario $$s --set mission.approach=$$a --truth realistic --robust \
+	    --missions $(BENCH_MISSIONS) --json > docs/results/scenarios/ceiling/$$s-$$a-robust.json || exit 1; \
+	done; done
+	$(BIN)/cikan report docs/results/scenarios/ceiling --ceiling --out docs/results/scenarios/ceiling \
+		--notes docs/results/ceiling_notes.md
 
 # cikan bench per scenario, side and Verify mode (the JSON of each in docs/results/scenarios/bench/:
 # <scenario>-<side>.json nominal, <scenario>-<side>-robust.json robust Verify in the realistic truth, flying the

@@ -93,6 +93,9 @@ class BenchStates:
     #: last update that moved tau (NaN: none yet), what a learned governor's rule for robust
     #: Verify's tail remembers (:func:`prime`).
     progress: list[float] = field(default_factory=list)
+    #: Per update state: the index of its mission in ``starts`` (the states of a mission are
+    #: consecutive).
+    mission: list[int] = field(default_factory=list)
     #: Conventional TSG per-state wall times (s), filled by ``conventional_section`` (runs first)
     #: so later sections report speed-ups measured in the same run on the same states.
     conventional_walls: NDArray | None = None
@@ -101,6 +104,8 @@ class BenchStates:
     def __post_init__(self) -> None:
         if not self.priors:
             self.priors = [None] * len(self.updates)
+        if not self.mission:
+            self.mission = [0] * len(self.updates)
 
     @property
     def n_missions(self) -> int:
@@ -184,6 +189,7 @@ def collect_states(cfg: Config, n_missions: int = 6) -> BenchStates:
             out.updates.append(s)
             out.priors.append(rec.before[s.t])
             out.progress.append(progress)
+            out.mission.append(len(out.starts) - 1)
     anchor.current = anchor.base
     if len(out.infeasible_seeds) == n_missions:
         raise EveryStartRefusedError(
@@ -228,10 +234,12 @@ def timed_update(governor: Governor, s: UpdateState, prior: KeplerOrbit | None =
     return thread_timed(governor.update, s.x_d, s.x_c, s.t, s.tau_prev)
 
 
-def time_updates(governor: Governor, states: BenchStates, repeats: int = 3
+def time_updates(governor: Governor, states: BenchStates, repeats: int = 3,
+                 then: Callable[[int, UpdateRecord], None] | None = None
                  ) -> tuple[NDArray, NDArray, list[str], NDArray, NDArray]:
     """Per state: median CPU time (s) of ``repeats`` updates, tau, path, Verify calls, and
-    whether the (first) update re-anchored the chief."""
+    whether the (first) update re-anchored the chief. ``then(i, record)``, if given, runs after
+    state i is timed (what is timed beside the updates, state by state, sees the same machine)."""
     n = len(states.updates)
     walls, taus, calls, re_anchored = np.empty(n), np.empty(n), np.empty(n), np.zeros(n, dtype=bool)
     paths: list[str] = []
@@ -243,6 +251,8 @@ def time_updates(governor: Governor, states: BenchStates, repeats: int = 3
         taus[i] = rec.tau_s
         calls[i] = rec.verify_calls
         paths.append(rec.path)
+        if then is not None:
+            then(i, rec)
     governor.anchor.current = governor.anchor.base
     return walls, taus, paths, calls, re_anchored
 

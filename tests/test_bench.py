@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 
+import numpy as np
 import pytest
 
 from cikan_ros.bench import conventional_section, nominal_section
@@ -23,6 +24,8 @@ NOMINAL_KEYS = {
     "conventional_update_ms_max", "conventional_update_max_t_s", "conventional_update_max_tau_prev_s",
     "conventional_update_max_verify_calls", "conventional_verify_calls_mean", "verify_ms_mean",
     "conventional_initial_ms_mean", "conventional_initial_ms_max", "offline_mission_s_mean",
+    "oracle_mission_speedup_mean", "oracle_mission_speedup_worst", "oracle_cpu_speedup",
+    "oracle_update_ms_mean", "oracle_hold_rate",
 }
 #: Figures a non-nominal run adds: the ratio to the nominal configuration and the anchoring cost.
 NEW_KEYS = {
@@ -75,6 +78,55 @@ def test_nominal_run_keeps_its_keys():
                  and s.tau_prev == out["conventional_update_max_tau_prev_s"])
     assert out["conventional_update_max_verify_calls"] == Predictor.from_config(cfg).optimal_shift(
         worst.x_d, worst.t, worst.tau_prev)[1]
+
+
+def test_ceiling_figures_golden():
+    """ceiling_figures on hand-made CPU times: mission 0 has conventional updates of 4 and 2 ms and
+    an oracle that paid 1 ms and held once (0); mission 1 has 3 and 3 ms against 1 and 2 ms. Per
+    mission (4 + 2) / (1 + 0) = 6 and (3 + 3) / (1 + 2) = 2: mean 4, worst 2; pooled 12 / 4 = 3;
+    the oracle's mean 1 ms a state; it held on 1 of 4 states."""
+    from cikan_ros.bench import ceiling_figures
+
+    out = ceiling_figures(np.array([4.0, 2.0, 3.0, 3.0]) * 1e-3, np.array([1.0, 0.0, 1.0, 2.0]) * 1e-3, [0, 0, 1, 1])
+    assert out == pytest.approx({"oracle_mission_speedup_mean": 4.0, "oracle_mission_speedup_worst": 2.0,
+                                 "oracle_cpu_speedup": 3.0, "oracle_update_ms_mean": 1.0, "oracle_hold_rate": 0.25})
+    # a mission where the oracle held on every state costs it nothing: no ratio, not infinity
+    held = ceiling_figures(np.array([1.0, 1.0]), np.zeros(2), [0, 0])
+    assert math.isnan(held["oracle_mission_speedup_mean"]) and held["oracle_hold_rate"] == 1.0
+
+
+def test_the_oracle_verifies_pi_star_once_and_holds_for_free():
+    """oracle_time at a benchmark state: 0 where pi* is tau_prev; elsewhere the CPU of one Verify
+    of pi*, which passes (its own bisection verified it); a tau that Verify refuses (0, whose
+    zero test failed where pi* is not 0) is an error, not a ceiling."""
+    from cikan_ros.bench import oracle_time
+    from cikan_ros.governor import ConventionalGovernor
+
+    cfg = load_config()
+    states = collect_states(cfg, 1)
+    gov = ConventionalGovernor.from_config(cfg)
+    moved = next(i for i, s in enumerate(states.updates) if s.tau_prev != s.tau != 0.0)
+    s = states.updates[moved]
+    assert oracle_time(gov, states, moved, s.tau_prev, 1) == 0.0
+    assert 0.0 < oracle_time(gov, states, moved, s.tau, 1)
+    assert not gov.predictor.verify(s.x_d, s.t, 0.0)
+    with pytest.raises(CikanError, match="failed its own Verify"):
+        oracle_time(gov, states, moved, 0.0, 1)
+
+
+def test_bench_sections_by_name():
+    """--section picks sections by name, in the report's order; the learned section brings the
+    conventional one it reads; an unknown name is refused naming the known ones."""
+    from cikan_ros.bench import conventional_section, nominal_section
+    from cikan_ros.commands.bench import sections
+    from cikan_ros.errors import ConfigError
+    from cikan_ros.learn.bench import learned_section
+
+    assert sections(("nominal", "conventional")) == [conventional_section, nominal_section]
+    assert sections(("learned",)) == [conventional_section, learned_section]
+    assert len(sections()) == 4
+    with pytest.raises(ConfigError, match="unknown bench section.*bogus.*known: conventional, nominal, learned, ros"):
+        sections(("bogus",))
 
 
 def test_realistic_robust_bench_reports_ratio_and_anchoring(realistic):
@@ -284,3 +336,31 @@ def test_ros_section_reports_the_median_lockstep_and_cpu_per_node(monkeypatch):
     # the separate layout's fixed cost is its own short mission's: (2.3 - 0.3 + 1.2 - 0.2) s / 1430
     assert out["ros_separate_rtf"] == 2.0 and out["ros_separate_cpu_per_step_ms"] == pytest.approx(3.0 / 1430 * 1e3)
     assert out["ros_separate_cpu_per_step_ms_sim"] == pytest.approx(2.0 / 1430 * 1e3)
+
+
+def test_the_ceiling_page_from_bench_files(tmp_path, capsys):
+    """`cikan report DIR --ceiling`: one row per `cikan bench --section conventional --json` file,
+    the Verify mode read from the file, figures as the file holds them; a refused configuration is
+    a row that says so; a file made before the ceiling is refused naming it."""
+    from cikan_ros.analysis.table import ceiling_index
+    from cikan_ros.cli import main
+
+    figures = {"n_missions": 5, "n_missions_infeasible": 1, "n_update_states": 812, "conventional_update_ms_mean": 1.23456,
+               "conventional_verify_calls_mean": 14.04, "oracle_update_ms_mean": 0.2468, "oracle_hold_rate": 0.125,
+               "oracle_mission_speedup_mean": 4.256, "oracle_mission_speedup_worst": 3.01, "oracle_cpu_speedup": 4.5,
+               "truth": "realistic", "robust": True}
+    (tmp_path / "leo-ahead-robust.json").write_text(json.dumps(figures))
+    (tmp_path / "leo-behind-robust.json").write_text(json.dumps({"refused": "Verify refuses all 5 starts", "robust": True,
+                                                                 "truth": "realistic"}))
+    rows = ceiling_index(tmp_path).splitlines()[2:]
+    assert rows == ["| leo | ahead | robust (realistic) | 4 | 812 | 1.235 (14.0) | 0.247 | 12% | 4.26 / 3.01 | 4.50 |",
+                    "| leo | behind | robust (realistic) | - | every start refused: Verify refuses all 5 starts "
+                    "| - | - | - | - | - |"]
+    out = tmp_path / "page"
+    assert main(["report", str(tmp_path), "--ceiling", "--out", str(out)]) == 0
+    page = (out / "README.md").read_text()
+    assert rows[0] in page and f"cikan report {tmp_path} --ceiling --out {out}" in page
+    del figures["oracle_cpu_speedup"], figures["oracle_mission_speedup_mean"]
+    (tmp_path / "paper-behind.json").write_text(json.dumps(figures))
+    assert main(["report", str(tmp_path), "--ceiling", "--out", str(out)]) == 2
+    assert "paper-behind.json has no ceiling" in capsys.readouterr().err

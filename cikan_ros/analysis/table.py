@@ -397,3 +397,41 @@ def bench_index(root: str | Path) -> str:
                 f"| {_fmt(b[f'{m}_speedup_mean'], '.2f')} / {_fmt(b.get(f'{m}_speedup_worst'), '.2f')} "
                 f"| {_fmt(b.get('learned_conventional_update_ms_mean'), '.3f')} |")
     return "\n".join(lines) + "\n"
+
+
+def ceiling_index(root: str | Path) -> str:
+    """Markdown: the ceiling of each ``cikan bench --section conventional --json`` file under ``root``
+    (``make scenario-ceiling``: ``<scenario>-<side>[-robust].json``), one row per scenario, side
+    and Verify mode: the conventional TSG's active update (CPU ms, Verify calls) against an
+    oracle that knows pi* and verifies it once (its CPU per state, the share of states where
+    pi* = tau_prev and it holds for free), and the oracle's speed-up of whole missions (mean over
+    the benchmark's missions, the worst, and all states pooled): what any governor that tracks
+    pi* and verifies what it flies can reach at most (``cikan_ros.bench.ceiling_figures``)."""
+    lines = ["| scenario | side | Verify | missions | active states | conventional update ms (Verify calls) "
+             "| oracle update ms | pi* = tau_prev | oracle mission speed-up mean / worst | all states |",
+             "|" + "---|" * 10]
+    files = sorted(Path(root).glob("*.json"))
+    if not files:
+        raise CikanError(f"no cikan bench JSON file in {root}")
+    for f in files:
+        stem = f.stem.removesuffix("-robust")
+        scenario, _, side = stem.rpartition("-")
+        try:
+            b = json.loads(f.read_text())
+        except (OSError, ValueError) as exc:
+            raise CikanError(f"cannot read bench file {f}: {exc}") from None
+        verify = verify_text(bool(b.get("robust")), b.get("truth", "nominal"))
+        if "refused" in b:
+            lines.append(f"| {scenario} | {side} | {verify} | - | every start refused: {b['refused']} "
+                         "| - | - | - | - | - |")
+            continue
+        if "oracle_mission_speedup_mean" not in b:
+            raise CikanError(f"{f} has no ceiling (oracle_*): made by a cikan bench before it")
+        flown = b["n_missions"] - b.get("n_missions_infeasible", 0)
+        lines.append(
+            f"| {scenario} | {side} | {verify} | {flown} | {b['n_update_states']} "
+            f"| {_fmt(b['conventional_update_ms_mean'], '.3f')} ({_fmt(b['conventional_verify_calls_mean'], '.1f')}) "
+            f"| {_fmt(b['oracle_update_ms_mean'], '.3f')} | {_fmt(b['oracle_hold_rate'], '.0%')} "
+            f"| {_fmt(b['oracle_mission_speedup_mean'], '.2f')} / {_fmt(b['oracle_mission_speedup_worst'], '.2f')} "
+            f"| {_fmt(b['oracle_cpu_speedup'], '.2f')} |")
+    return "\n".join(lines) + "\n"

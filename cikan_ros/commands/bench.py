@@ -6,6 +6,7 @@ import argparse
 from typing import TYPE_CHECKING, Any, Callable
 
 from ..config import Config
+from ..errors import ConfigError
 from ..strict_json import dumps
 from . import add_config_args, config_from_args
 
@@ -16,10 +17,16 @@ if TYPE_CHECKING:
 Section = Callable[[Config, "BenchStates", int], dict[str, Any]]
 
 
-def sections() -> list[Section]:
-    """The report's sections, in order: the conventional TSG (under the configuration, then under
-    the nominal one: ``cikan_ros.bench``), the learned governors (``cikan_ros.learn.bench``) and
-    the ROS graph's lockstep (``cikan_ros.ros.bench``, which needs rclpy only when it runs)."""
+#: The report's sections by name, in the order they run (``cikan bench --section``).
+SECTION_NAMES = ("conventional", "nominal", "learned", "ros")
+
+
+def sections(names: tuple[str, ...] = SECTION_NAMES) -> list[Section]:
+    """The report's sections ``names`` (all by default), in order: the conventional TSG (under the
+    configuration, then under the nominal one: ``cikan_ros.bench``), the learned governors
+    (``cikan_ros.learn.bench``) and the ROS graph's lockstep (``cikan_ros.ros.bench``, which
+    needs rclpy only when it runs). The learned section reads the conventional one's timings,
+    so asking for it runs the conventional section too."""
     from ..bench import conventional_section, nominal_section
     from ..learn.bench import learned_section
     from ..ros.bench import ros_section
@@ -29,17 +36,26 @@ def sections() -> list[Section]:
 
         return ros_section(cfg, states, repeats, follow=lambda bag: start_view_process(bag, 0, False)[0])
 
-    return [conventional_section, nominal_section, learned_section, ros_with_view]
+    unknown = sorted(set(names) - set(SECTION_NAMES))
+    if unknown:
+        raise ConfigError(f"unknown bench section(s) {', '.join(unknown)}; known: {', '.join(SECTION_NAMES)}")
+    if "learned" in names:
+        names = tuple(set(names) | {"conventional"})
+    by_name = dict(zip(SECTION_NAMES, (conventional_section, nominal_section, learned_section, ros_with_view)))
+    return [by_name[n] for n in SECTION_NAMES if n in names]
 
 
-def run_bench(cfg: Config, n_missions: int = 6, repeats: int = 3) -> dict[str, Any]:
-    """All benchmark figures in one run (ratios are comparable only within one run), every
-    section on the same update states (``cikan_ros.timing.collect_states``)."""
+def run_bench(cfg: Config, n_missions: int = 6, repeats: int = 3,
+              names: tuple[str, ...] = SECTION_NAMES) -> dict[str, Any]:
+    """The benchmark figures of sections ``names`` (all by default) in one run (ratios are
+    comparable only within one run), every section on the same update states
+    (``cikan_ros.timing.collect_states``)."""
     from ..timing import collect_states
 
+    chosen = sections(names)   # a bad name fails before any mission flies
     states = collect_states(cfg, n_missions)
     out: dict[str, Any] = {}
-    for section in sections():
+    for section in chosen:
         out.update(section(cfg, states, repeats))
     return out
 
@@ -51,20 +67,23 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--missions", type=int, default=6, help="missions whose states are timed (>= 5)")
     p.add_argument("--repeats", type=int, default=3, help="timings per state (median kept)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--section", action="append", choices=SECTION_NAMES, default=None,
+                   help="run only this section (repeatable; default: all): conventional (the conventional "
+                        "TSG and the oracle ceiling), nominal (the conventional TSG under the nominal "
+                        "configuration, for the ratios), learned (the shipped models; runs conventional "
+                        "too), ros (the graph's lockstep)")
     add_config_args(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..errors import ConfigError
-
     if args.missions < 1 or args.repeats < 1:
         raise ConfigError("--missions and --repeats must be >= 1")
     from ..timing import EveryStartRefusedError
 
     cfg = config_from_args(args)
     try:
-        figures = run_bench(cfg, args.missions, args.repeats)
+        figures = run_bench(cfg, args.missions, args.repeats, tuple(args.section or SECTION_NAMES))
     except EveryStartRefusedError as exc:
         # A result, not a failure: what the scenario index shows for this configuration.
         figures = {"refused": str(exc), "n_missions": args.missions, "n_missions_infeasible": args.missions,
@@ -123,6 +142,10 @@ def report_tables(figures: dict[str, Any]) -> list[Any]:
                       "1.00", "1.00", cell("mission_conventional_verify_calls_mean", ".2f"), "-", "-")
         for m in models:
             flown.add_row(m, *(cell(m + suffix, spec) for _, suffix, spec in AS_FLOWN))
+        if "oracle_mission_speedup_mean" in figures:   # the ceiling of any governor tracking pi*
+            flown.add_row("oracle: pi* verified once (ceiling)", cell("oracle_update_ms_mean", ".3f"),
+                          cell("oracle_mission_speedup_mean", ".2f"), cell("oracle_mission_speedup_worst", ".2f"),
+                          cell("oracle_cpu_speedup", ".2f"), "-", "-", "-", "-")
         per = Table(title="Per update on the benchmark's states, the network trusted")
         per.add_column("governor")
         for col, _, _ in PER_UPDATE:
