@@ -349,6 +349,23 @@ def scenarios_index(root: str | Path) -> str:
     return "\n".join(lines) + "\n"
 
 
+def bench_files(root: str | Path) -> list[tuple[Path, str, str, str, dict[str, Any]]]:
+    """The ``cikan bench --json`` files under ``root`` named ``<scenario>-<side>[-robust].json``,
+    sorted: (file, scenario, side, Verify as :func:`verify_text` names it, figures)."""
+    files = sorted(Path(root).glob("*.json"))
+    if not files:
+        raise CikanError(f"no cikan bench JSON file in {root}")
+    out = []
+    for f in files:
+        scenario, _, side = f.stem.removesuffix("-robust").rpartition("-")
+        try:
+            b = json.loads(f.read_text())
+        except (OSError, ValueError) as exc:
+            raise CikanError(f"cannot read bench file {f}: {exc}") from None
+        out.append((f, scenario, side, verify_text(bool(b.get("robust")), b.get("truth", "nominal")), b))
+    return out
+
+
 def bench_index(root: str | Path) -> str:
     """Markdown: the speed figures of each ``cikan bench --json`` output under ``root`` (``make
     scenario-bench``: ``<scenario>-<side>.json``, and ``<scenario>-<side>-robust.json`` under
@@ -365,17 +382,7 @@ def bench_index(root: str | Path) -> str:
     lines = ["| scenario | side | Verify | model | mission speed-up mean / worst | Verify calls per active "
              "update (conventional) | searching | NN accept | per update, trusted: speed-up mean / worst "
              "| conventional update ms |", "|" + "---|" * 10]
-    files = sorted(Path(root).glob("*.json"))
-    if not files:
-        raise CikanError(f"no cikan bench JSON file in {root}")
-    for f in files:
-        stem = f.stem.removesuffix("-robust")
-        scenario, _, side = stem.rpartition("-")
-        try:
-            b = json.loads(f.read_text())
-        except (OSError, ValueError) as exc:
-            raise CikanError(f"cannot read bench file {f}: {exc}") from None
-        verify = verify_text(bool(b.get("robust")), b.get("truth", "nominal"))
+    for f, scenario, side, verify, b in bench_files(root):
         if "refused" in b:   # cikan bench: Verify refused every start (timing.EveryStartRefusedError)
             lines.append(f"| {scenario} | {side} | {verify} | - | every start refused: {b['refused']} "
                          "| - | - | - | - | - |")
@@ -410,17 +417,7 @@ def ceiling_index(root: str | Path) -> str:
     lines = ["| scenario | side | Verify | missions | active states | conventional update ms (Verify calls) "
              "| oracle update ms | pi* = tau_prev | oracle mission speed-up mean / worst | all states |",
              "|" + "---|" * 10]
-    files = sorted(Path(root).glob("*.json"))
-    if not files:
-        raise CikanError(f"no cikan bench JSON file in {root}")
-    for f in files:
-        stem = f.stem.removesuffix("-robust")
-        scenario, _, side = stem.rpartition("-")
-        try:
-            b = json.loads(f.read_text())
-        except (OSError, ValueError) as exc:
-            raise CikanError(f"cannot read bench file {f}: {exc}") from None
-        verify = verify_text(bool(b.get("robust")), b.get("truth", "nominal"))
+    for f, scenario, side, verify, b in bench_files(root):
         if "refused" in b:
             lines.append(f"| {scenario} | {side} | {verify} | - | every start refused: {b['refused']} "
                          "| - | - | - | - | - |")
