@@ -345,7 +345,7 @@ def test_the_ceiling_page_from_bench_files(tmp_path, capsys):
     from cikan_ros.analysis.table import ceiling_index
     from cikan_ros.cli import main
 
-    figures = {"n_missions": 5, "n_missions_infeasible": 1, "n_update_states": 812, "conventional_update_ms_mean": 1.23456,
+    figures = {"n_missions": 4, "n_missions_infeasible": 1, "n_update_states": 812, "conventional_update_ms_mean": 1.23456,
                "conventional_verify_calls_mean": 14.04, "oracle_update_ms_mean": 0.2468, "oracle_hold_rate": 0.125,
                "oracle_mission_speedup_mean": 4.256, "oracle_mission_speedup_worst": 3.01, "oracle_cpu_speedup": 4.5,
                "truth": "realistic", "robust": True}
@@ -353,7 +353,7 @@ def test_the_ceiling_page_from_bench_files(tmp_path, capsys):
     (tmp_path / "leo-behind-robust.json").write_text(json.dumps({"refused": "Verify refuses all 5 starts", "robust": True,
                                                                  "truth": "realistic"}))
     rows = ceiling_index(tmp_path).splitlines()[2:]
-    assert rows == ["| leo | ahead | robust (realistic) | 4 | 812 | 1.235 (14.0) | 0.247 | 12% | 4.26 / 3.01 | 4.50 |",
+    assert rows == ["| leo | ahead | robust (realistic) | 4 (+1 refused) | 812 | 1.235 (14.0) | 0.247 | 12% | 4.26 / 3.01 | 4.50 |",
                     "| leo | behind | robust (realistic) | - | every start refused: Verify refuses all 5 starts "
                     "| - | - | - | - | - |"]
     out = tmp_path / "page"

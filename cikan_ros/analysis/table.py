@@ -415,7 +415,7 @@ def ceiling_index(root: str | Path) -> str:
     the benchmark's missions, the worst, and all states pooled): what any governor that tracks
     pi* and verifies what it flies can reach at most (``cikan_ros.bench.ceiling_figures``)."""
     lines = ["| scenario | side | Verify | missions | active states | conventional update ms (Verify calls) "
-             "| oracle update ms | pi* = tau_prev | oracle mission speed-up mean / worst | all states |",
+             "| oracle update ms | π* = τ_prev | oracle mission speed-up mean / worst | all states |",
              "|" + "---|" * 10]
     for f, scenario, side, verify, b in bench_files(root):
         if "refused" in b:
@@ -424,9 +424,10 @@ def ceiling_index(root: str | Path) -> str:
             continue
         if "oracle_mission_speedup_mean" not in b:
             raise CikanError(f"{f} has no ceiling (oracle_*): made by a cikan bench before it")
-        flown = b["n_missions"] - b.get("n_missions_infeasible", 0)
+        refused = b.get("n_missions_infeasible", 0)   # n_missions counts the missions flown
+        missions = f"{b['n_missions']}" + (f" (+{refused} refused)" if refused else "")
         lines.append(
-            f"| {scenario} | {side} | {verify} | {flown} | {b['n_update_states']} "
+            f"| {scenario} | {side} | {verify} | {missions} | {b['n_update_states']} "
             f"| {_fmt(b['conventional_update_ms_mean'], '.3f')} ({_fmt(b['conventional_verify_calls_mean'], '.1f')}) "
             f"| {_fmt(b['oracle_update_ms_mean'], '.3f')} | {_fmt(b['oracle_hold_rate'], '.0%')} "
             f"| {_fmt(b['oracle_mission_speedup_mean'], '.2f')} / {_fmt(b['oracle_mission_speedup_worst'], '.2f')} "
