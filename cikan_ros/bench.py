@@ -122,7 +122,7 @@ def oracle_time(gov: ConventionalGovernor, states: BenchStates, i: int, tau_star
 
 def ceiling_figures(walls: np.ndarray, oracle: np.ndarray, mission: list[int]) -> dict[str, Any]:
     """What any governor that moves tau to pi* could reach at most, from per-state CPU times (s)
-    of the conventional TSG (``walls``) and of the oracle (:func:`oracle_times`), states grouped
+    of the conventional TSG (``walls``) and of the oracle (:func:`oracle_time`), states grouped
     by ``mission``: the ceiling of a learned governor that tracks pi* and verifies what it flies.
     ``oracle_mission_speedup_mean`` / ``_worst``: each mission's conventional CPU over its
     oracle's (mean over missions, worst mission), ``oracle_cpu_speedup``: all states pooled,
