@@ -331,6 +331,38 @@ def test_bag_writer_flushing_in_the_background_writes_the_same_file(tmp_path: Pa
         assert [t // 10**9 for _, t, _ in reader.messages()] == list(range(1, 10))
 
 
+def test_bag_writer_packs_message_indexes_into_the_librarys_bytes(tmp_path: Path,
+                                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    """The chunks' message indexes packed in one call (bag_writer._PackedMessageIndex, what every
+    flush and the close write) give the file mcap's own MessageIndex.write gives, byte for byte,
+    over two topics, three chunks and messages out of stamp order; and packing did happen (an
+    mcap that moved its chunk builder would silently fall back: this says so)."""
+    from cikan_ros.ros import bag_writer
+
+    def fill(name: str) -> bytes:
+        writer = BagWriter(tmp_path / name)
+        writer.add_topic("/clock", "rosgraph_msgs/msg/Clock", [qos_dict(QOS_STREAM)])
+        writer.add_topic("/tsg/time_shift", "sensor_msgs/msg/TimeReference", [qos_dict(QOS_STREAM)])
+        for chunk in range(3):
+            for i in (5, 3, 4, 1, 2, 9, 8, 7, 6):
+                t = (chunk * 10 + i) * 10**9
+                writer.write("/clock", serialize_message(cv.clock_msg(t)), t)
+                if i % 3 == 0:
+                    writer.write("/tsg/time_shift", cdr.time_shift_cdr(t, -0.5 * i, "bisect"), t + 1)
+            if chunk < 2:
+                writer.flush()
+        writer.close()
+        return next((tmp_path / name).glob("*.mcap")).read_bytes()
+
+    packed = []
+    write = bag_writer._PackedMessageIndex.write
+    monkeypatch.setattr(bag_writer._PackedMessageIndex, "write", lambda self, s: (packed.append(1), write(self, s)))
+    ours = fill("packed")
+    assert len(packed) == 6   # two topics' indexes in each of three chunks
+    monkeypatch.setattr(bag_writer, "_pack_message_indexes", lambda writer: None)
+    assert fill("library") == ours
+
+
 def test_bag_writer_a_failed_background_flush_is_raised_where_the_bag_is_used(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     writer = BagWriter(tmp_path / "bag", background=True)

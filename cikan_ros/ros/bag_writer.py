@@ -22,7 +22,8 @@ flushed so far. So after a SIGKILL the directory is a complete, readable bag up 
 flushed chunk, and a clean close writes the full summary.
 
 Flushing in the background (``BagWriter(..., background=True)``, the recorder's): a flush (2-6 ms
-of CPU: compressing the chunk, its message indexes, the provisional summary, metadata.yaml) runs
+of CPU: compressing the chunk, its message indexes (packed: :class:`_PackedMessageIndex`), the
+provisional summary, metadata.yaml) runs
 in a thread of its own, as rosbag2's recorder writes from a cache consumer thread, so that the
 executor thread that takes the messages (in the default process layout the simulator's too)
 goes on meanwhile. Messages that arrive during a flush are held, in arrival order, and written
@@ -36,12 +37,15 @@ import copy
 import json
 import os
 import re
+import struct
 import threading
 from pathlib import Path
 from types import TracebackType
 from typing import Any
 
 import yaml
+from mcap.opcode import Opcode
+from mcap.records import MessageIndex
 from mcap.writer import CompressionType, Writer
 
 from ..paths import install_prefixes
@@ -213,6 +217,33 @@ class _Sink:
             self.fd = -1
 
 
+class _PackedMessageIndex(MessageIndex):
+    """mcap's MessageIndex record, its (log time, offset) entries packed in one ``struct.pack``
+    rather than two calls per message: the same bytes (tests/test_ros_convert.py). The indexes
+    of a 1 MiB chunk (~2,700 messages, nine topics) took 1.4 ms of Python, 0.35 ms packed; a
+    flush of a mission's bag (its 16,387 messages written again, six flushes, three alternating
+    rounds) 4.5-6.2 -> 3.7-3.8 ms of CPU (medians): GIL the recorder's flush thread no longer
+    takes from the simulator beside it."""
+
+    def write(self, stream: Any) -> None:
+        n = len(self.records)
+        stream.start_record(Opcode.MESSAGE_INDEX)
+        stream.write2(self.channel_id)
+        stream.write4(n * 16)
+        stream.write(struct.pack(f"<{2 * n}Q", *[v for entry in self.records for v in entry]))
+        stream.finish_record()
+
+
+def _pack_message_indexes(writer: Writer) -> None:
+    """Make the open chunk's message indexes :class:`_PackedMessageIndex` before mcap's writer
+    writes them (its chunk builder is private: with an mcap that keeps it elsewhere, nothing
+    changes and the library writes them itself)."""
+    builder = getattr(writer, "_Writer__chunk_builder", None)
+    for index in getattr(builder, "message_indices", {}).values():
+        if type(index) is MessageIndex:
+            index.__class__ = _PackedMessageIndex
+
+
 class BagWriter:
     """A rosbag2 MCAP bag directory written from raw CDR messages (see the module docstring); a
     context manager that closes it."""
@@ -338,6 +369,7 @@ class BagWriter:
             self._flush_error = exc
 
     def _flush(self) -> None:
+        _pack_message_indexes(self.writer)
         self.writer.flush()   # finalize the chunk (kept in the sink)
         capture = _Capture(self.sink.tell())
         copy.deepcopy(self.writer, memo={id(self.sink): capture}).finish()
@@ -356,6 +388,7 @@ class BagWriter:
         except BaseException:
             self._held.clear()   # the file ends at the last flush that succeeded; close it all the same
         try:
+            _pack_message_indexes(self.writer)
             self.writer.finish()
         finally:
             self.sink.close()
