@@ -129,8 +129,8 @@ def ceiling_figures(walls: np.ndarray, oracle: np.ndarray, mission: list[int]) -
     ``oracle_update_ms_mean``: the oracle's CPU per state, ``oracle_hold_rate``: the share of
     states where pi* = tau_prev (free to the oracle)."""
     ids = np.asarray(mission)
-    ratios = [float(walls[ids == m].sum() / oracle[ids == m].sum()) for m in np.unique(ids)
-              if oracle[ids == m].sum() > 0.0]
+    conv, ora = np.bincount(ids, weights=walls), np.bincount(ids, weights=oracle)   # per mission
+    ratios = [float(c / o) for c, o in zip(conv, ora) if o > 0.0]
     return {
         "oracle_mission_speedup_mean": float(np.mean(ratios)) if ratios else math.nan,
         "oracle_mission_speedup_worst": min(ratios) if ratios else math.nan,

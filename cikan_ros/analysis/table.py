@@ -366,6 +366,11 @@ def bench_files(root: str | Path) -> list[tuple[Path, str, str, str, dict[str, A
     return out
 
 
+def _refused_row(scenario: str, side: str, verify: str, why: str) -> str:
+    """A ten-column row of the bench tables for a configuration whose Verify refused every start."""
+    return f"| {scenario} | {side} | {verify} | - | every start refused: {why} | - | - | - | - | - |"
+
+
 def bench_index(root: str | Path) -> str:
     """Markdown: the speed figures of each ``cikan bench --json`` output under ``root`` (``make
     scenario-bench``: ``<scenario>-<side>.json``, and ``<scenario>-<side>-robust.json`` under
@@ -384,8 +389,7 @@ def bench_index(root: str | Path) -> str:
              "| conventional update ms |", "|" + "---|" * 10]
     for f, scenario, side, verify, b in bench_files(root):
         if "refused" in b:   # cikan bench: Verify refused every start (timing.EveryStartRefusedError)
-            lines.append(f"| {scenario} | {side} | {verify} | - | every start refused: {b['refused']} "
-                         "| - | - | - | - | - |")
+            lines.append(_refused_row(scenario, side, verify, b["refused"]))
             continue
         foreign = b.get("learned_foreign_models") or {}
         flown = [m for m in LEARNED_NAMES if f"{m}_speedup_mean" in b]
@@ -419,8 +423,7 @@ def ceiling_index(root: str | Path) -> str:
              "|" + "---|" * 10]
     for f, scenario, side, verify, b in bench_files(root):
         if "refused" in b:
-            lines.append(f"| {scenario} | {side} | {verify} | - | every start refused: {b['refused']} "
-                         "| - | - | - | - | - |")
+            lines.append(_refused_row(scenario, side, verify, b["refused"]))
             continue
         if "oracle_mission_speedup_mean" not in b:
             raise CikanError(f"{f} has no ceiling (oracle_*): made by a cikan bench before it")
