@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import json
 import shutil
 import sys
@@ -22,7 +23,7 @@ from visualization_msgs.msg import MarkerArray
 from cikan_ros.config import Side, load_config
 from cikan_ros.errors import ConfigError
 from cikan_ros.ros import cdr, convert as cv
-from cikan_ros.ros.bag_writer import BagWriter, qos_dict, schema_text, type_hash
+from cikan_ros.ros.bag_writer import YAML_DUMPER, BagWriter, qos_dict, schema_text, type_hash
 from cikan_ros.ros.graph import QOS_PROFILES, QOS_STREAM, qos_for
 from cikan_ros.ros.graph_spec import QOS_KINDS, TOPICS
 from cikan_ros.ros.params import declare_config, parameter_descriptions
@@ -363,6 +364,61 @@ def test_bag_writer_packs_message_indexes_into_the_librarys_bytes(tmp_path: Path
     assert fill("library") == ours
 
 
+def test_bag_writer_provisional_end_is_what_finish_of_a_deep_copy_writes(tmp_path: Path,
+                                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    """After each flush the file ends in a provisional trailer (DataEnd, summary, Footer, magic):
+    ``finish`` of a shallow copy of mcap's writer (bag_writer._provisional_trailer) writes the
+    bytes ``finish`` of a deep copy writes, flush after flush (the summary offsets and chunk
+    indexes growing), the writer left as it was (the closed files equal too); and mcap reads
+    each provisional file with the messages flushed so far."""
+    from mcap.reader import make_reader
+
+    from cikan_ros.ros import bag_writer
+
+    def fill(name: str) -> list[bytes]:
+        writer = BagWriter(tmp_path / name)
+        writer.add_topic("/clock", "rosgraph_msgs/msg/Clock", [qos_dict(QOS_STREAM)])
+        writer.add_topic("/tsg/time_shift", "sensor_msgs/msg/TimeReference", [qos_dict(QOS_STREAM)])
+        files = []
+        for chunk in range(3):
+            for i in (3, 1, 2):
+                t = (chunk * 10 + i) * 10**9
+                writer.write("/clock", serialize_message(cv.clock_msg(t)), t)
+                writer.write("/tsg/time_shift", cdr.time_shift_cdr(t, -0.5 * i, "bisect"), t + 1)
+            writer.flush()
+            files.append(writer.file.read_bytes())
+        writer.close()
+        return files + [writer.file.read_bytes()]
+
+    ours = fill("shallow")
+    for k, data in enumerate(ours[:-1]):
+        summary = make_reader(io.BytesIO(data)).get_summary()
+        assert summary.statistics.message_count == 6 * (k + 1) and len(summary.chunk_indexes) == k + 1
+    monkeypatch.setattr(bag_writer, "_FINISH_WRITES", ("_Writer__no_such_state",))   # the deep copy
+    assert fill("deep") == ours
+
+
+def test_bag_writer_closes_a_chunk_every_chunk_bytes(tmp_path: Path) -> None:
+    """``BagWriter(path, chunk_bytes)`` flushes by itself once that many message bytes are
+    unflushed (the recorder's ``recorder.chunk_bytes``): 100 clock messages of 12 bytes in
+    256-byte chunks are 4 chunks of 22 messages (264 bytes) and one of 12 at close; 0 flushes
+    only when asked."""
+    from mcap.reader import make_reader
+
+    for chunk_bytes, chunks in ((256, [22] * 4 + [12]), (0, [100])):
+        writer = BagWriter(tmp_path / f"bag{chunk_bytes}", chunk_bytes)
+        writer.add_topic("/clock", "rosgraph_msgs/msg/Clock", [qos_dict(QOS_STREAM)])
+        data = serialize_message(cv.clock_msg(10**9))
+        assert len(data) == 12
+        for k in range(100):
+            writer.write("/clock", data, (k + 1) * 10**9)
+        writer.close()
+        with open(writer.file, "rb") as f:
+            summary = make_reader(f).get_summary()
+        sizes = [(c.message_end_time - c.message_start_time) // 10**9 + 1 for c in summary.chunk_indexes]
+        assert sizes == chunks and sum(sizes) == 100
+
+
 def test_bag_writer_a_failed_background_flush_is_raised_where_the_bag_is_used(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     writer = BagWriter(tmp_path / "bag", background=True)
@@ -429,12 +485,14 @@ def test_bag_writer_metadata_text_is_the_documents_yaml(tmp_path_factory: pytest
     for (topic, type_name, qos), n in zip(topics, counts):
         writer.add_topic(topic, type_name, [qos_dict(qos)])
         writer.flushed[topic] = n
-    writer.metadata_text()   # the cache filled, then the counts change
+    writer.metadata_text()   # the caches filled, then the counts and the custom data change
     writer.flushed = {t: n + 1 for t, n in writer.flushed.items()}
+    writer.custom_data["cikan_ros.governor"] = "conventional -> exec: 'x'"
     writer.flushed_times = [times[0], times[0] + times[1]]
     doc = {"rosbag2_bagfile_information": writer.metadata_info()}
     text = writer.metadata_text()
     assert yaml.safe_load(text) == doc == yaml.safe_load(yaml.safe_dump(doc, sort_keys=False))
+    assert doc["rosbag2_bagfile_information"]["custom_data"]["cikan_ros.governor"] == "conventional -> exec: 'x'"
     assert [e["message_count"] for e in doc["rosbag2_bagfile_information"]["topics_with_message_count"]] \
         == [n + 1 for n in counts]
     writer.close()

@@ -143,9 +143,7 @@ class RecorderNode(Node):
             stamp = cdr_stamp_ns(data, TOPIC_TYPES[topic])
         except cv.MessageError:
             stamp = time.time_ns()
-        self.bag.write(topic, data, stamp)
-        if self.bag.unflushed_bytes >= self.chunk_bytes:
-            self.bag.flush()
+        self.bag.write(topic, data, stamp)   # which flushes every recorder.chunk_bytes
 
     def request_stop(self, signum: int, _frame: Any) -> None:
         """Signal handler: start draining (runs between callbacks, never inside one)."""
