@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pytest
 import yaml
 
 from cikan_ros.config import load_config
@@ -26,7 +27,7 @@ from cikan_ros.mission import ClosedLoop, nominal_start, run_mission
 from cikan_ros.registry import make_governor
 from cikan_ros.ros.convert import Timeline
 from cikan_ros.ros.graph_spec import NODES, PATH_HOLD
-from cikan_ros.ros.launch import Graph, ros_environment, run_ros_mission, write_params
+from cikan_ros.ros.launch import Graph, exec_environment, ros_environment, run_ros_mission, write_params
 from cikan_ros.tsg import Predictor
 from ros_helpers import (at_step, controller_record, diagnostics, independent_check, mcap_counts, ros_env,
                          rosbags_messages, set_in_flight, shifts, stamp_ns, states, watcher)
@@ -245,3 +246,27 @@ def test_geo_mission_as_a_graph_equals_the_offline_mission(ros_env: int, tmp_pat
     np.testing.assert_allclose(x_d - x_c, offline.x_d - offline.x_c, rtol=0, atol=1e-9)   # 1 um, 1 um/s
     published = shifts(msgs)
     assert [published[tl.stamp_ns(k)] for k in range(30)] == list(offline.tau[:30])
+
+
+def test_a_cikan_ros_in_the_working_directory_does_not_fly_in_the_nodes(tmp_path: Path,
+                                                                         monkeypatch: pytest.MonkeyPatch) -> None:
+    """`cikan mission` run where another cikan_ros lies (a checkout of another commit): its
+    nodes (`python -m cikan_ros...` in the graph's environment, launch.ros_environment) import
+    the package the launcher imported, not the one in the working directory, which without
+    PYTHONSAFEPATH would come first on their sys.path. An external governor gets the user's
+    own setting back (a script beside its modules imports them)."""
+    import cikan_ros
+
+    decoy = tmp_path / "cikan_ros"
+    decoy.mkdir()
+    (decoy / "__init__.py").write_text("raise ImportError('the cikan_ros of the working directory')\n")
+    code = ["-c", "import cikan_ros; print(cikan_ros.__file__)"]
+    env = ros_environment(0, tmp_path / "log")
+    out = subprocess.run([sys.executable, *code], cwd=tmp_path, env=env, capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert Path(out.stdout.strip()) == Path(cikan_ros.__file__)
+    bare = {k: v for k, v in env.items() if k != "PYTHONSAFEPATH"}
+    out = subprocess.run([sys.executable, *code], cwd=tmp_path, env=bare, capture_output=True, text=True)
+    assert "the cikan_ros of the working directory" in out.stderr   # what it guards against
+    monkeypatch.delenv("PYTHONSAFEPATH", raising=False)
+    assert "PYTHONSAFEPATH" not in exec_environment(ros_environment(0, tmp_path / "log"))

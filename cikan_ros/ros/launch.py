@@ -78,8 +78,11 @@ def ros_environment(domain_id: int, log_dir: Path) -> dict[str, str]:
     """Environment of the children: isolated domain, loopback-only transport
     (:func:`dds_environment`), private log directory."""
     env = dict(os.environ)
+    # PYTHONSAFEPATH: `python -m cikan_ros...` would otherwise put the working directory first on
+    # the nodes' sys.path, and a cikan_ros checkout there (another commit's) would fly in place
+    # of the package the launcher imported.
     env.update(ROS_DOMAIN_ID=str(domain_id), ROS_LOG_DIR=str(log_dir), PYTHONUNBUFFERED="1",
-               RCUTILS_COLORIZED_OUTPUT="0", **dds_environment())
+               RCUTILS_COLORIZED_OUTPUT="0", PYTHONSAFEPATH="1", **dds_environment())
     return env
 
 
@@ -122,8 +125,11 @@ def exec_governor_name(command: str) -> str:
 
 def exec_environment(env: dict[str, str]) -> dict[str, str]:
     """Environment of an external governor: the graph's, without the ROS-wheels bootstrap guard
-    (its interpreter, maybe of another venv, sets up its own ROS libraries)."""
-    return {k: v for k, v in env.items() if k != "_ROS_WHEELS_BOOTSTRAP_COMPLETE"}
+    (its interpreter, maybe of another venv, sets up its own ROS libraries) and with the user's
+    own PYTHONSAFEPATH (a Python script beside its modules imports them)."""
+    own = {"PYTHONSAFEPATH": os.environ["PYTHONSAFEPATH"]} if "PYTHONSAFEPATH" in os.environ else {}
+    return {**{k: v for k, v in env.items() if k not in ("_ROS_WHEELS_BOOTSTRAP_COMPLETE", "PYTHONSAFEPATH")},
+            **own}
 
 
 @dataclass
