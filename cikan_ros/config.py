@@ -502,6 +502,7 @@ class LearnedConfig:
     tail_growth: float = 1.5
     tail_budget: int = 5
     tail_min_progress: float = 0.05
+    tail_backoff: int = 0
     trust_at_start: str = "network"
     foreign_model: bool = False
 
@@ -542,6 +543,8 @@ class LearnedConfig:
                self.tail_budget, "must be an integer in [1, 64]")
         _check(math.isfinite(self.tail_min_progress) and 0.0 <= self.tail_min_progress <= 1.0,
                "learned.tail_min_progress", self.tail_min_progress, "must be in [0, 1]")
+        _check(isinstance(self.tail_backoff, int) and 0 <= self.tail_backoff <= 1024, "learned.tail_backoff",
+               self.tail_backoff, "must be an integer in [0, 1024] (0: off)")
         _check(self.stall_judge in ("progress", "audit"), "learned.stall_judge", self.stall_judge,
                "must be 'progress' (any progress a stall search finds is a miss) or 'audit' "
                "(only progress beyond audit_step)")

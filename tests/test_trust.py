@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import functools
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -364,3 +365,44 @@ def test_a_timed_update_starts_from_the_missions_progress() -> None:
         timed_update(gov, states.updates[j], states.priors[j], states.progress[j])
         again = timed_update(gov, *args)[0]
         assert (again.tau_s, again.path, again.verify_calls) == (first.tau_s, first.path, first.verify_calls)
+
+
+def test_the_robust_tails_searches_back_off_while_they_find_nothing() -> None:
+    """``learned.tail_backoff`` B: a conventional search in robust Verify's tail that finds no
+    progress (π* = τ_prev, a state of a robust mission where that holds; the tail widened to
+    take it in) holds τ_prev, path
+    "keep" and no Verify call, for the next 1, 2, 4, ... (at most B) updates before it searches
+    again; a search that finds progress resets the holds; B = 0 searches every time (the
+    default, as before)."""
+    from cikan_ros.config import truth_overrides
+    from cikan_ros.governor import PATH_KEEP, PATH_TAIL
+
+    # A tail as wide as the mission (robust_tail_s 1e3 s): its states include stalls
+    base = {**truth_overrides("realistic"), "tsg.robust": True, "learned.tail_rule": "search",
+            "learned.robust_tail_s": 1e3}
+    pred = Predictor.from_config(load_config(None, **base))
+    tail = [s for s in _robust_updates() if 0.0 < abs(s.tau_prev) <= 1e3]
+    probe = _constant(pred, 1e-6)
+
+    def star(s: Any) -> float:
+        return probe.anchor(s.x_c, s.t).optimal_shift(s.x_d, s.t, s.tau_prev)[0]
+    stall = next(s for s in tail if star(s) == s.tau_prev)
+    move = next(s for s in tail if star(s) != s.tau_prev)
+    expected = {0: "T" * 12, 4: "TKTKKTKKKKTK"}
+    for backoff, want in expected.items():
+        gov = _constant(Predictor.from_config(load_config(None, **base, **{"learned.tail_backoff": backoff})), 1e-6)
+        got = ""
+        for _ in range(12):
+            rec = gov.update(stall.x_d, stall.x_c, stall.t, stall.tau_prev)
+            assert rec.tau_s == stall.tau_prev
+            assert rec.verify_calls == 0 if rec.path == PATH_KEEP else rec.path == PATH_TAIL
+            got += "K" if rec.path == PATH_KEEP else "T"
+        assert got == want, backoff
+    # progress found resets the wait: after it, a stall holds for one update again
+    gov = _constant(Predictor.from_config(load_config(None, **base, **{"learned.tail_backoff": 4})), 1e-6)
+    for _ in range(5):   # T K T K K: the holds done
+        gov.update(stall.x_d, stall.x_c, stall.t, stall.tau_prev)
+    rec = gov.update(move.x_d, move.x_c, move.t, move.tau_prev)
+    assert rec.path == PATH_TAIL and rec.tau_s != move.tau_prev
+    paths = [gov.update(stall.x_d, stall.x_c, stall.t, stall.tau_prev).path for _ in range(3)]
+    assert paths == [PATH_TAIL, PATH_KEEP, PATH_TAIL]

@@ -220,6 +220,8 @@ class LearnedGovernor:
         #: and the tail's gallops in a row that found none (:meth:`_tail`).
         self._progress = math.nan
         self._tail_misses = 0
+        #: learned.tail_backoff: the holds before the tail's next search, and their count now.
+        self._tail_holds, self._tail_wait = 0, 0
         self._zero_failed = False  # this update's gallop verified 0 itself, and it failed
 
     @classmethod
@@ -251,10 +253,12 @@ class LearnedGovernor:
         a benchmark times an update as the mission's governor would make it
         (:func:`cikan_ros.timing.prime`)."""
         self._progress, self._tail_misses = float(progress), 0
+        self._tail_holds, self._tail_wait = 0, 0
 
     def initial(self, x_d: ArrayLike, x_c: ArrayLike, t: float) -> UpdateRecord:
         self.trust.reset()
         self._progress, self._tail_misses = math.nan, 0
+        self._tail_holds, self._tail_wait = 0, 0
         return initial_update(self.anchor, x_d, x_c, t)
 
     def update(self, x_d: ArrayLike, x_c: ArrayLike, t: float, tau_prev: float) -> UpdateRecord:
@@ -376,12 +380,21 @@ class LearnedGovernor:
         ``learned.tail_min_progress`` (a tail that creeps ~1 % an update and now and then jumps,
         as under the paper's controller, where a gallop from the creep misses the jumps), and
         after TAIL_MISSES gallops in a row found none (so a shrinking progress cannot hold τ for
-        good)."""
+        good). With ``learned.tail_backoff`` B > 0, a conventional search here that finds no
+        progress holds τ_prev for the next 1, 2, 4, ... (at most B) updates [keep] before it
+        searches again, progress found resetting it: where robust Verify's tube certifies no
+        τ = 0 (GEO), the conventional TSG spends most of a mission's CPU on such searches."""
         lc = pred.config.learned
+        if self._tail_holds > 0:   # learned.tail_backoff: the last search found nothing
+            self._tail_holds -= 1
+            return tau_prev, PATH_KEEP, 0, None
         if (lc.tail_rule == "search" or not self._progress >= lc.tail_min_progress
                 or self._tail_misses >= TAIL_MISSES):
             self._tail_misses = 0
             tau, calls = pred.optimal_shift(x_d, t, tau_prev)
+            if lc.tail_backoff:
+                self._tail_wait = min(max(2 * self._tail_wait, 1), lc.tail_backoff) if tau == tau_prev else 0
+                self._tail_holds = self._tail_wait
             return tau, PATH_TAIL, calls, None
         cache = pred.cache(t)
         tau, q, q_fail, calls = pred.gallop(x_d, t, tau_prev, self._progress, lc.tail_growth, lc.tail_budget, cache)
