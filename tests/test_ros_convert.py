@@ -23,7 +23,7 @@ from visualization_msgs.msg import MarkerArray
 from cikan_ros.config import Side, load_config
 from cikan_ros.errors import ConfigError
 from cikan_ros.ros import cdr, convert as cv
-from cikan_ros.ros.bag_writer import YAML_DUMPER, BagWriter, qos_dict, schema_text, type_hash
+from cikan_ros.ros.bag_writer import BagWriter, qos_dict, schema_text, type_hash
 from cikan_ros.ros.graph import QOS_PROFILES, QOS_STREAM, qos_for
 from cikan_ros.ros.graph_spec import QOS_KINDS, TOPICS
 from cikan_ros.ros.params import declare_config, parameter_descriptions

@@ -216,12 +216,10 @@ class LearnedGovernor:
         self._code = FEATURE_CODES[net.arch.features]
         self._rungs = np.array(lc.ladder, dtype=np.float64)
         self._cands_ns = np.empty(len(lc.ladder), dtype=np.int64)
-        #: The last progress, 1 - τ_k / τ_{k-1} of the last update that moved τ (NaN: none yet),
-        #: and the tail's gallops in a row that found none (:meth:`_tail`).
-        self._progress = math.nan
-        self._tail_misses = 0
-        #: learned.tail_backoff: the holds before the tail's next search, and their count now.
-        self._tail_holds, self._tail_wait = 0, 0
+        #: The tail's memory (:meth:`_tail`): the last progress, 1 - τ_k / τ_{k-1} of the last
+        #: update that moved τ (NaN: none yet), the gallops in a row that found none, and
+        #: (learned.tail_backoff) the holds left before the next search and the current wait.
+        self.remember_progress(math.nan)
         self._zero_failed = False  # this update's gallop verified 0 itself, and it failed
 
     @classmethod
@@ -249,16 +247,15 @@ class LearnedGovernor:
         return quantise_shift(self.predictor.side * math.exp(y))
 
     def remember_progress(self, progress: float) -> None:
-        """Set the last progress the tail's rule starts from (NaN: none) and clear its misses: how
-        a benchmark times an update as the mission's governor would make it
-        (:func:`cikan_ros.timing.prime`)."""
+        """Set the last progress the tail's rule starts from (NaN: none) and clear its misses and
+        holds: how a mission starts, and how a benchmark times an update as the mission's
+        governor would make it (:func:`cikan_ros.timing.prime`)."""
         self._progress, self._tail_misses = float(progress), 0
         self._tail_holds, self._tail_wait = 0, 0
 
     def initial(self, x_d: ArrayLike, x_c: ArrayLike, t: float) -> UpdateRecord:
         self.trust.reset()
-        self._progress, self._tail_misses = math.nan, 0
-        self._tail_holds, self._tail_wait = 0, 0
+        self.remember_progress(math.nan)
         return initial_update(self.anchor, x_d, x_c, t)
 
     def update(self, x_d: ArrayLike, x_c: ArrayLike, t: float, tau_prev: float) -> UpdateRecord:

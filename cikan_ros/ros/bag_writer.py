@@ -44,9 +44,9 @@ from types import TracebackType
 from typing import Any
 
 import yaml
+from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
 from mcap.records import MessageIndex
-from mcap.data_stream import RecordBuilder
 from mcap.writer import CompressionType, Writer
 
 from ..paths import install_prefixes

@@ -127,9 +127,10 @@ def exec_environment(env: dict[str, str]) -> dict[str, str]:
     """Environment of an external governor: the graph's, without the ROS-wheels bootstrap guard
     (its interpreter, maybe of another venv, sets up its own ROS libraries) and with the user's
     own PYTHONSAFEPATH (a Python script beside its modules imports them)."""
-    own = {"PYTHONSAFEPATH": os.environ["PYTHONSAFEPATH"]} if "PYTHONSAFEPATH" in os.environ else {}
-    return {**{k: v for k, v in env.items() if k not in ("_ROS_WHEELS_BOOTSTRAP_COMPLETE", "PYTHONSAFEPATH")},
-            **own}
+    out = {k: v for k, v in env.items() if k not in ("_ROS_WHEELS_BOOTSTRAP_COMPLETE", "PYTHONSAFEPATH")}
+    if "PYTHONSAFEPATH" in os.environ:
+        out["PYTHONSAFEPATH"] = os.environ["PYTHONSAFEPATH"]
+    return out
 
 
 @dataclass
