@@ -494,6 +494,7 @@ class LearnedConfig:
     probe_budget: int = 2
     trust_credit: int = 3
     trust_hits: int = 3
+    trust_retry: int = 2
     audit_step: float = 0.1
     stall_updates: int = 10
     stall_judge: str = "progress"
@@ -527,6 +528,8 @@ class LearnedConfig:
                self.trust_credit, "must be an integer in [0, 64] (0: never trust the network)")
         _check(isinstance(self.trust_hits, int) and 1 <= self.trust_hits <= 64, "learned.trust_hits",
                self.trust_hits, "must be an integer in [1, 64]")
+        _check(isinstance(self.trust_retry, int) and 0 <= self.trust_retry <= 1000, "learned.trust_retry",
+               self.trust_retry, "must be an integer in [0, 1000] (0: only shadow hits give trust back)")
         _check(self.trust_at_start in ("network", "search"), "learned.trust_at_start", self.trust_at_start,
                "must be 'network' (a mission starts with it on probation) or 'search' (it must earn trust)")
         _check(math.isfinite(self.audit_step) and 0.0 <= self.audit_step < 1.0, "learned.audit_step",

@@ -50,6 +50,55 @@ def test_credit_arithmetic() -> None:
     assert Trust(cap=0, hits=2, start="network").searching   # credit 0: never trusted
 
 
+def test_retry_arithmetic() -> None:
+    """learned.trust_retry R = 2: after R searching updates in a row the network is on
+    probation again (credit 1) without shadow hits; a retry that loses its credit before the
+    cap doubles the wait (2, 4, 8, 16, then 16 = 8R); a retry that reaches the cap resets it to
+    R; shadow hits still give the credit back at once; R = 0 never retries."""
+    t = Trust(cap=3, hits=3, retry=2)
+    waits = []
+    for _ in range(6):
+        t.judge(miss=True)                                # probation's credit lost: searching
+        assert t.searching
+        n = 0
+        while t.searching:
+            t.after_update(moved=False, searched=True)
+            n += 1
+        waits.append(n)
+        assert (t.credit, t.probation) == (1, True)
+    assert waits == [2, 4, 8, 16, 16, 16]
+    t.judge(miss=False)
+    t.judge(miss=False)                                   # the cap: the retry paid
+    assert t.credit == 3 and t.retry_wait == 2
+    for _ in range(3):
+        t.judge(miss=True)
+    t.after_update(moved=False, searched=True)
+    t.after_update(moved=False, searched=True)
+    assert t.credit == 1                                  # back after R = 2 again
+    t.judge(miss=True)                                    # that retry failed: the wait doubles
+    assert t.retry_wait == 4
+    for hit in (True, True, True):                        # earned back by shadow hits: no retry
+        t.shadow(hit)
+    assert t.credit == 1 and not t.retried
+    t.judge(miss=True)                                    # a lost earned credit: the wait stays
+    assert t.retry_wait == 4
+    for _ in range(3):
+        t.after_update(moved=False, searched=True)
+    assert t.searching
+    t.after_update(moved=False, searched=True)
+    assert t.credit == 1
+    never = Trust(cap=3, hits=3, retry=0)
+    never.judge(miss=True)
+    for _ in range(100):
+        never.after_update(moved=False, searched=True)
+    assert never.searching
+    assert Trust(cap=0, hits=3, retry=2).searching        # credit 0 for good: nothing to retry
+    zero = Trust(cap=0, hits=3, retry=2)
+    zero.after_update(moved=False, searched=True)
+    zero.after_update(moved=False, searched=True)
+    assert zero.searching
+
+
 def test_stall_rule_arithmetic() -> None:
     """Holds count while the rule keeps tau_prev; N = 2 holds make a search due; a search that
     finds nothing doubles the wait (up to 8N = 16); a move, or a mission's start, resets it."""
@@ -183,7 +232,7 @@ def test_the_stall_rule_searches_after_held_updates(predictor: Predictor, stall_
     searches like the conventional TSG (its answer is pi* at that state, here progress: a miss,
     which takes the probation credit, so the rule searches from then on)."""
     cfg = predictor.config.replace(**{"learned.audit_step": 0.0, "learned.probe_budget": 0,
-                                      "learned.stall_updates": stall_updates,
+                                      "learned.stall_updates": stall_updates, "learned.trust_retry": 0,
                                       "mission.duration_s": 900.0})
     pred = Predictor.from_config(cfg)
     gov = _constant(pred, 1e6)
@@ -198,6 +247,21 @@ def test_the_stall_rule_searches_after_held_updates(predictor: Predictor, stall_
     stall = active[3]
     assert stall.tau_s == pred.optimal_shift(*_state(res, stall, pred), stall.tau_prev)[0] != stall.tau_prev
     assert {u.path for u in active[4:]} <= {PATH_SEARCH}
+
+
+def test_a_searching_governor_retries_its_network(predictor: Predictor) -> None:
+    """The mission above with learned.trust_retry = 2: the stall search's miss takes the
+    probation credit; that update (it answered π*) and the search after it are R = 2 searching
+    updates in a row, so the next is the network's again (held, path keep), not a search: the
+    retry, without any shadow hit (with R = 0 every later update searches: the test above)."""
+    cfg = predictor.config.replace(**{"learned.audit_step": 0.0, "learned.probe_budget": 0,
+                                      "learned.stall_updates": 3, "learned.trust_retry": 2,
+                                      "mission.duration_s": 900.0})
+    pred = Predictor.from_config(cfg)
+    gov = _constant(pred, 1e6)
+    res = run_mission(gov, sample_start(pred, 1), 1)
+    paths = [u.path for u in res.updates if u.active]
+    assert paths[:6] == [PATH_KEEP] * 3 + [PATH_STALL, PATH_SEARCH, PATH_KEEP], paths
 
 
 def test_a_searching_governor_consults_its_network_only_to_judge_it(predictor: Predictor) -> None:

@@ -78,6 +78,9 @@ from .modelfile import CARD, LoadedModel, flown_model_dir, label_mismatch, load_
 MAX_LOG_SHIFT = 40.0
 #: The stall rule waits at most this many times learned.stall_updates holds between searches.
 STALL_BACKOFF = 8
+#: A searching governor's wait before it puts its network on probation again
+#: (``learned.trust_retry``) grows up to this many times the configured wait.
+RETRY_BACKOFF = 8
 #: Gallop updates in a row that found no progress after which robust Verify's tail searches like
 #: the conventional TSG (learned.tail_rule "gallop").
 TAIL_MISSES = 2
@@ -124,13 +127,25 @@ class Trust:
       against it for free (a *shadow* hit or miss, :meth:`LearnedGovernor.would_pay`), and
       ``hits`` consecutive shadow hits give back one credit (probation).
 
+    - ``retry`` R > 0: after R searching updates in a row the network goes on probation again
+      (c = 1) without the shadow hits; a retry that loses its credit before it reaches the cap
+      doubles the wait (up to RETRY_BACKOFF x R), reaching the cap resets it. Shadow hits need
+      π* to move beyond the audit's reach, which can be rare for many updates (the paper's
+      orbit: a whole first phase searching after one miss); a failed retry costs one ladder
+      and its audit, the update that loses the credit answering π* as a search does.
+
     A mission starts on probation (``start`` "network", c = 1) or searching ("search").
     Deterministic: a function of the mission's updates."""
 
-    def __init__(self, cap: int, hits: int, start: str = "network", stall: int = 0) -> None:
-        self.cap, self.need_hits, self.start, self.stall = cap, hits, start, stall
+    def __init__(self, cap: int, hits: int, start: str = "network", stall: int = 0, retry: int = 0) -> None:
+        self.cap, self.need_hits, self.start, self.stall, self.retry = cap, hits, start, stall, retry
         self.credit = 0
         self.hits = 0
+        #: Searching updates in a row, the wait before the next retry, and whether the
+        #: current probation is a retry's (not earned by shadow hits) that has not reached the cap.
+        self.searched = 0
+        self.retry_wait = retry
+        self.retried = False
         #: Trusted updates in a row that answered tau_prev (the stall rule's count), and how
         #: many of them the rule waits for before it searches (``stall``, doubled after each
         #: search that found no progress, up to STALL_BACKOFF x ``stall``).
@@ -143,10 +158,15 @@ class Trust:
         return 0 < self.stall_wait <= self.held
 
     def after_update(self, moved: bool, searched: bool) -> None:
-        """Count a hold (a trusted update that kept tau_prev); a move resets the stall rule."""
+        """Count a hold (a trusted update that kept tau_prev); a move resets the stall rule.
+        Count a searching update; the retry's wait reached, the network is on probation again."""
         self.held = self.held + 1 if not (moved or searched) else 0
         if moved:
             self.stall_wait = self.stall
+        if self.credit == 0 and self.cap > 0:
+            self.searched += 1
+            if self.retry and self.searched >= self.retry_wait:
+                self.credit, self.hits, self.searched, self.retried = 1, 0, 0, True
 
     def stall_found_nothing(self) -> None:
         """A stall search kept tau_prev: a true stall; wait twice as long before the next."""
@@ -167,20 +187,31 @@ class Trust:
         self.hits = 0
         self.held = 0
         self.stall_wait = self.stall
+        self.searched = 0
+        self.retry_wait = self.retry
+        self.retried = False
 
     def grant(self) -> None:
         """Full trust now (the benchmark times the network's path this way)."""
         self.credit, self.hits, self.held, self.stall_wait = self.cap, 0, 0, self.stall
+        self.searched, self.retry_wait, self.retried = 0, self.retry, False
 
     def judge(self, miss: bool) -> None:
         """One trusted update's outcome."""
         self.credit = max(self.credit - 1, 0) if miss else min(self.credit + 1, self.cap)
+        if self.credit == self.cap:
+            self.retry_wait, self.retried = self.retry, False
+        elif self.credit == 0:
+            self.searched = 0
+            if self.retried:  # the retry did not pay: wait longer before the next
+                self.retry_wait = min(2 * self.retry_wait, RETRY_BACKOFF * self.retry)
+                self.retried = False
 
     def shadow(self, hit: bool) -> None:
         """One searching update's shadow judgement of the proposal."""
         self.hits = self.hits + 1 if hit else 0
         if self.hits >= self.need_hits:
-            self.credit, self.hits = min(1, self.cap), 0
+            self.credit, self.hits, self.searched, self.retried = min(1, self.cap), 0, 0, False
 
 
 class KeepStep:
@@ -207,7 +238,8 @@ class LearnedGovernor:
         self.name = name
         self._z = np.empty((1, net.arch.n_in))
         lc = predictor.config.learned
-        self.trust = Trust(lc.trust_credit, lc.trust_hits, lc.trust_at_start, lc.stall_updates)
+        self.trust = Trust(lc.trust_credit, lc.trust_hits, lc.trust_at_start, lc.stall_updates,
+                           lc.trust_retry)
         #: None, or what a model flown on another scenario or side was trained for.
         self.foreign: str | None = None
         #: The model directory and weights digest flown (None for a network built in memory).
