@@ -495,6 +495,7 @@ class LearnedConfig:
     trust_credit: int = 3
     trust_hits: int = 3
     trust_retry: int = 2
+    robust_trust_retry: int = 0
     audit_step: float = 0.1
     stall_updates: int = 10
     stall_judge: str = "progress"
@@ -528,8 +529,10 @@ class LearnedConfig:
                self.trust_credit, "must be an integer in [0, 64] (0: never trust the network)")
         _check(isinstance(self.trust_hits, int) and 1 <= self.trust_hits <= 64, "learned.trust_hits",
                self.trust_hits, "must be an integer in [1, 64]")
-        _check(isinstance(self.trust_retry, int) and 0 <= self.trust_retry <= 1000, "learned.trust_retry",
-               self.trust_retry, "must be an integer in [0, 1000] (0: only shadow hits give trust back)")
+        for name in ("trust_retry", "robust_trust_retry"):
+            v = getattr(self, name)
+            _check(isinstance(v, int) and 0 <= v <= 1000, f"learned.{name}", v,
+                   "must be an integer in [0, 1000] (0: only shadow hits give trust back)")
         _check(self.trust_at_start in ("network", "search"), "learned.trust_at_start", self.trust_at_start,
                "must be 'network' (a mission starts with it on probation) or 'search' (it must earn trust)")
         _check(math.isfinite(self.audit_step) and 0.0 <= self.audit_step < 1.0, "learned.audit_step",

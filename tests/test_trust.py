@@ -264,6 +264,17 @@ def test_a_searching_governor_retries_its_network(predictor: Predictor) -> None:
     assert paths[:6] == [PATH_KEEP] * 3 + [PATH_STALL, PATH_SEARCH, PATH_KEEP], paths
 
 
+def test_robust_verify_retries_by_its_own_setting(predictor: Predictor) -> None:
+    """learned.trust_retry is nominal Verify's; under robust Verify learned.robust_trust_retry
+    (default 0) is the wait (contract)."""
+    base = {"learned.trust_retry": 3, "learned.robust_trust_retry": 5}
+    nominal = _constant(Predictor.from_config(predictor.config.replace(**base)), 1.0)
+    robust = _constant(Predictor.from_config(predictor.config.replace(**base, **{"tsg.robust": True})), 1.0)
+    assert (nominal.trust.retry, robust.trust.retry) == (3, 5)
+    default = _constant(Predictor.from_config(predictor.config.replace(**{"tsg.robust": True})), 1.0)
+    assert default.trust.retry == 0 and _constant(predictor, 1.0).trust.retry == 2
+
+
 def test_a_searching_governor_consults_its_network_only_to_judge_it(predictor: Predictor) -> None:
     """Searching (credit 0: learned.trust_credit = 0 never trusts), every active update is the
     rule's search; the network is consulted exactly on the updates whose π* moved τ_prev beyond

@@ -239,7 +239,7 @@ class LearnedGovernor:
         self._z = np.empty((1, net.arch.n_in))
         lc = predictor.config.learned
         self.trust = Trust(lc.trust_credit, lc.trust_hits, lc.trust_at_start, lc.stall_updates,
-                           lc.trust_retry)
+                           lc.robust_trust_retry if predictor.robust else lc.trust_retry)
         #: None, or what a model flown on another scenario or side was trained for.
         self.foreign: str | None = None
         #: The model directory and weights digest flown (None for a network built in memory).
