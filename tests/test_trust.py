@@ -12,12 +12,14 @@ from typing import Any
 import numpy as np
 import pytest
 import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from cikan_ros.config import load_config
 from cikan_ros.governor import PATH_AUDIT, PATH_KEEP, PATH_SEARCH, PATH_STALL, ConventionalGovernor
 from cikan_ros.learn.arch import Arch, NumpyNet
 from cikan_ros.learn.features import features
-from cikan_ros.learn.governor import LearnedGovernor, Trust
+from cikan_ros.learn.governor import RETRY_BACKOFF, LearnedGovernor, Trust
 from cikan_ros.learn.models import TimeShiftNet
 from cikan_ros.mission import nominal_start, run_mission, sample_start
 from cikan_ros.tsg import Predictor
@@ -97,6 +99,38 @@ def test_retry_arithmetic() -> None:
     zero.after_update(moved=False, searched=True)
     zero.after_update(moved=False, searched=True)
     assert zero.searching
+
+
+_EVENTS = st.lists(st.sampled_from(["hit", "miss", "shadow-hit", "shadow-miss", "search", "hold", "move"]),
+                   max_size=200)
+
+
+@settings(max_examples=200, deadline=None)
+@given(events=_EVENTS, cap=st.integers(0, 4), retry=st.integers(0, 5))
+def test_retry_bounds_property(events: list[str], cap: int, retry: int) -> None:
+    """Any sequence of judgements and updates: the credit stays in [0, cap]; the retry's wait
+    stays in [R, 8R]; with R = 0 a searching governor gets its credit back only from shadow
+    hits; with R > 0 (and a cap above 0) fewer searching updates than the current wait pass in a
+    row."""
+    t = Trust(cap=cap, hits=2, retry=retry)
+    searching_run = 0
+    for e in events:
+        before = t.credit
+        if e == "hit" and not t.searching:
+            t.judge(miss=False)
+        elif e == "miss" and not t.searching:
+            t.judge(miss=True)
+        elif e.startswith("shadow") and t.searching:
+            t.shadow(e == "shadow-hit")
+        elif e in ("search", "hold", "move"):
+            wait = t.retry_wait
+            t.after_update(moved=e == "move", searched=e == "search" or t.searching)
+            searching_run = searching_run + 1 if t.searching else 0
+            assert retry == 0 or cap == 0 or searching_run < wait
+            if retry == 0 and before == 0:
+                assert t.credit == 0
+        assert 0 <= t.credit <= cap
+        assert retry <= t.retry_wait <= RETRY_BACKOFF * retry
 
 
 def test_stall_rule_arithmetic() -> None:
