@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 import pytest
 import torch
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from cikan_ros.config import load_config
@@ -107,6 +107,7 @@ _EVENTS = st.lists(st.sampled_from(["hit", "miss", "shadow-hit", "shadow-miss", 
 
 @settings(max_examples=200, deadline=None)
 @given(events=_EVENTS, cap=st.integers(0, 4), retry=st.integers(0, 5))
+@example(events=["miss", "shadow-hit", "search", "search", "shadow-hit", "miss", "search"], cap=1, retry=3)
 def test_retry_bounds_property(events: list[str], cap: int, retry: int) -> None:
     """Any sequence of judgements and updates: the credit stays in [0, cap]; the retry's wait
     stays in [R, 8R]; with R = 0 a searching governor gets its credit back only from shadow
@@ -125,10 +126,12 @@ def test_retry_bounds_property(events: list[str], cap: int, retry: int) -> None:
         elif e in ("search", "hold", "move"):
             wait = t.retry_wait
             t.after_update(moved=e == "move", searched=e == "search" or t.searching)
-            searching_run = searching_run + 1 if t.searching else 0
-            assert retry == 0 or cap == 0 or searching_run < wait
+            searching_run += 1
+            assert retry == 0 or cap == 0 or not t.searching or searching_run < wait
             if retry == 0 and before == 0:
                 assert t.credit == 0
+        if not t.searching:
+            searching_run = 0
         assert 0 <= t.credit <= cap
         assert retry <= t.retry_wait <= RETRY_BACKOFF * retry
 
