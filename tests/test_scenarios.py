@@ -25,7 +25,7 @@ from cikan_ros.mission import nominal_shift, nominal_start, run_mission, sample_
 from cikan_ros.registry import make_governor
 from cikan_ros.tsg import Predictor
 from cikan_ros.units import through_si
-from tests.test_trust import _constant  # at import: test_trust's @given must not run inside a test
+from constant_network import constant_governor
 
 COS20 = math.cos(math.radians(20.0))
 
@@ -134,8 +134,8 @@ def test_searches_ahead_agree_with_verify(ahead: Predictor) -> None:
 def test_keep_rule_candidates_are_mirrored(tau_prev: float, ratio: float) -> None:
     """The ladder ahead is the ladder behind with every shift negated (one implementation)."""
     cfg = load_config()
-    behind_gov = _constant(_predictor(cfg, "behind"), 1.0)
-    ahead_gov = _constant(_predictor(cfg, "ahead"), 1.0)
+    behind_gov = constant_governor(_predictor(cfg, "behind"), 1.0)
+    ahead_gov = constant_governor(_predictor(cfg, "ahead"), 1.0)
     tau_c = ratio * tau_prev
     assert ahead_gov.candidates(tau_c, tau_prev) == [-c for c in behind_gov.candidates(-tau_c, -tau_prev)]
 

@@ -11,18 +11,15 @@ from typing import Any
 
 import numpy as np
 import pytest
-import torch
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from cikan_ros.config import load_config
 from cikan_ros.governor import PATH_AUDIT, PATH_KEEP, PATH_SEARCH, PATH_STALL, ConventionalGovernor
-from cikan_ros.learn.arch import Arch, NumpyNet
-from cikan_ros.learn.features import features
-from cikan_ros.learn.governor import RETRY_BACKOFF, LearnedGovernor, Trust
-from cikan_ros.learn.models import TimeShiftNet
-from cikan_ros.mission import nominal_start, run_mission, sample_start
+from cikan_ros.learn.governor import RETRY_BACKOFF, Trust
+from cikan_ros.mission import run_mission, sample_start
 from cikan_ros.tsg import Predictor
+from constant_network import constant_governor
 
 
 def test_credit_arithmetic() -> None:
@@ -175,20 +172,6 @@ def predictor() -> Predictor:
     return Predictor.from_config(load_config())
 
 
-def _constant(predictor: Predictor, tau_abs: float) -> LearnedGovernor:
-    """A network whose output is the constant ln|tau| = ln(tau_abs) (all weights zero)."""
-    arch = Arch("relu", 8, 2)
-    net = TimeShiftNet(arch)
-    x0 = nominal_start(predictor)
-    f0 = features(x0, predictor.orbit.state(0.0))
-    net.set_normalisation(f0, np.abs(f0) * 0.1 + 1.0, math.log(tau_abs), 1.0)
-    with torch.no_grad():
-        for p in net.parameters():
-            p.zero_()
-    sd = {k: v.detach().numpy() for k, v in net.state_dict().items()}
-    return LearnedGovernor(NumpyNet(arch, sd), predictor, f"constant-{tau_abs:g}")
-
-
 def test_shadow_judgement_golden(predictor: Predictor) -> None:
     """would_pay, worked by hand for a constant proposal tau_c = -5 s (ladder 0.08, 0.03, 0,
     -0.05 -> candidates -4.6, -4.85, -5, -5.25 s), audit_step 0.1:
@@ -202,7 +185,7 @@ def test_shadow_judgement_golden(predictor: Predictor) -> None:
     - tau_prev = -10, pi* = -7: candidates all closer to 0 than -7 fail, the answer is tau_prev
       = -10, 0.9 * 10 = 9 > 7: a miss.
     """
-    gov = _constant(predictor, 5.0)
+    gov = constant_governor(predictor, 5.0)
     assert gov.candidates(-5.0, -10.0) == [-4.6, -4.85, -5.0, -5.25]
     assert gov.candidates(-5.0, -5.2) == [-4.6, -4.85, -5.0]      # |c| <= |tau_prev| - 1 ms only
     assert gov.candidates(-5.0, -5.0) == [-4.6, -4.85]
@@ -217,7 +200,7 @@ def test_shadow_judgement_golden(predictor: Predictor) -> None:
 def test_shadow_judgement_is_sign_agnostic(predictor: Predictor) -> None:
     """The same judgements ahead of the chief (every shift negated)."""
     ahead = Predictor.from_config(predictor.config.replace(**{"mission.approach": "ahead"}))
-    gov = _constant(ahead, 5.0)
+    gov = constant_governor(ahead, 5.0)
     for tau_prev, star, want in ((10.0, 5.0, True), (10.0, 2.0, False), (10.0, 9.5, None),
                                  (10.0, 7.0, False)):
         assert gov.would_pay(5.0, tau_prev, star) is want
@@ -234,7 +217,7 @@ def test_a_network_that_does_not_fit_costs_little(predictor: Predictor, tau_abs:
     searching updates answer pi* exactly; mean Delta-V and time to tau = 0 within 10 % of the
     conventional TSG on the same starts (measured before the trust existed: up to +80 %)."""
     conv = ConventionalGovernor(predictor)
-    gov = _constant(predictor, tau_abs)
+    gov = constant_governor(predictor, tau_abs)
     dv, dv0, t0, t00 = [], [], [], []
     for seed in (1, 2, 3):
         x0 = sample_start(predictor, seed)
@@ -272,7 +255,7 @@ def test_the_stall_rule_searches_after_held_updates(predictor: Predictor, stall_
                                       "learned.stall_updates": stall_updates, "learned.trust_retry": 0,
                                       "mission.duration_s": 900.0})
     pred = Predictor.from_config(cfg)
-    gov = _constant(pred, 1e6)
+    gov = constant_governor(pred, 1e6)
     res = run_mission(gov, sample_start(pred, 1), 1)
     active = [u for u in res.updates if u.active]
     assert len(active) >= 10
@@ -295,7 +278,7 @@ def test_a_searching_governor_retries_its_network(predictor: Predictor) -> None:
                                       "learned.stall_updates": 3, "learned.trust_retry": 2,
                                       "mission.duration_s": 900.0})
     pred = Predictor.from_config(cfg)
-    gov = _constant(pred, 1e6)
+    gov = constant_governor(pred, 1e6)
     res = run_mission(gov, sample_start(pred, 1), 1)
     paths = [u.path for u in res.updates if u.active]
     assert paths[:6] == [PATH_KEEP] * 3 + [PATH_STALL, PATH_SEARCH, PATH_KEEP], paths
@@ -305,11 +288,11 @@ def test_robust_verify_retries_by_its_own_setting(predictor: Predictor) -> None:
     """learned.trust_retry is nominal Verify's; under robust Verify learned.robust_trust_retry
     (default 0) is the wait (contract)."""
     base = {"learned.trust_retry": 3, "learned.robust_trust_retry": 5}
-    nominal = _constant(Predictor.from_config(predictor.config.replace(**base)), 1.0)
-    robust = _constant(Predictor.from_config(predictor.config.replace(**base, **{"tsg.robust": True})), 1.0)
+    nominal = constant_governor(Predictor.from_config(predictor.config.replace(**base)), 1.0)
+    robust = constant_governor(Predictor.from_config(predictor.config.replace(**base, **{"tsg.robust": True})), 1.0)
     assert (nominal.trust.retry, robust.trust.retry) == (3, 5)
-    default = _constant(Predictor.from_config(predictor.config.replace(**{"tsg.robust": True})), 1.0)
-    assert default.trust.retry == 0 and _constant(predictor, 1.0).trust.retry == 2
+    default = constant_governor(Predictor.from_config(predictor.config.replace(**{"tsg.robust": True})), 1.0)
+    assert default.trust.retry == 0 and constant_governor(predictor, 1.0).trust.retry == 2
 
 
 def test_a_searching_governor_consults_its_network_only_to_judge_it(predictor: Predictor) -> None:
@@ -318,7 +301,7 @@ def test_a_searching_governor_consults_its_network_only_to_judge_it(predictor: P
     the audit's reach (LearnedGovernor.judgeable: a shadow judgement), never on the others."""
     pred = Predictor.from_config(predictor.config.replace(**{"learned.trust_credit": 0,
                                                              "mission.duration_s": 3600.0}))
-    gov = _constant(pred, 3.0)
+    gov = constant_governor(pred, 3.0)
     consulted = []
     network = gov.proposal
     gov.proposal = lambda *args: consulted.append(args) or network(*args)   # type: ignore[method-assign]
@@ -353,7 +336,7 @@ def test_the_robust_tail_is_the_conventional_search(predictor: Predictor, tail_s
     pred = Predictor.from_config(cfg)
     tail = [s for s in _robust_updates() if 0.0 < abs(s.tau_prev) <= 0.1]
     assert len(tail) >= 4 and {s.k % cfg.learned.probe_every == 0 for s in tail} == {True, False}
-    gov = _constant(pred, 1e-6)
+    gov = constant_governor(pred, 1e-6)
     for s in tail[:6]:
         gov.trust.grant()
         rec = gov.update(s.x_d, s.x_c, s.t, s.tau_prev)
@@ -362,7 +345,7 @@ def test_the_robust_tail_is_the_conventional_search(predictor: Predictor, tail_s
             assert (rec.path, rec.tau_s, rec.verify_calls) == (PATH_TAIL, star, calls)
         else:
             assert rec.path != PATH_TAIL
-    assert not _constant(predictor, 1e-6)._robust_tail(predictor, -0.05)   # nominal Verify
+    assert not constant_governor(predictor, 1e-6)._robust_tail(predictor, -0.05)   # nominal Verify
 
 
 def test_the_robust_tail_gallops_from_the_last_progress() -> None:
@@ -381,7 +364,7 @@ def test_the_robust_tail_gallops_from_the_last_progress() -> None:
     lc = cfg.learned
     pred = Predictor.from_config(cfg)
     tail = [s for s in _robust_updates() if 0.0 < abs(s.tau_prev) <= lc.robust_tail_s]
-    gov = _constant(pred, 1e-6)
+    gov = constant_governor(pred, 1e-6)
     paths = []
     for i, s in enumerate(tail[:8]):
         q = gov._progress
@@ -411,7 +394,7 @@ def test_the_robust_tail_gallops_from_the_last_progress() -> None:
     assert gov.update(s.x_d, s.x_c, s.t, s.tau_prev).path == PATH_TAIL
     # Without that floor, a gallop that cannot move (its q far below the tolerance's step) counts
     # as a miss, and TAIL_MISSES of them hand the next update to the conventional search.
-    gov = _constant(Predictor.from_config(cfg.replace(**{"learned.tail_min_progress": 0.0})), 1e-6)
+    gov = constant_governor(Predictor.from_config(cfg.replace(**{"learned.tail_min_progress": 0.0})), 1e-6)
     gov._progress, gov._tail_misses = 1e-9, 0
     for _ in range(TAIL_MISSES):
         assert gov.update(s.x_d, s.x_c, s.t, s.tau_prev).path == PATH_GALLOP
@@ -494,7 +477,7 @@ def test_the_robust_tails_searches_back_off_while_they_find_nothing() -> None:
             "learned.robust_tail_s": 1e3}
     pred = Predictor.from_config(load_config(None, **base))
     tail = [s for s in _robust_updates() if 0.0 < abs(s.tau_prev) <= 1e3]
-    probe = _constant(pred, 1e-6)
+    probe = constant_governor(pred, 1e-6)
 
     def star(s: Any) -> float:
         return probe.anchor(s.x_c, s.t).optimal_shift(s.x_d, s.t, s.tau_prev)[0]
@@ -502,7 +485,7 @@ def test_the_robust_tails_searches_back_off_while_they_find_nothing() -> None:
     move = next(s for s in tail if star(s) != s.tau_prev)
     expected = {0: "T" * 12, 4: "TKTKKTKKKKTK"}
     for backoff, want in expected.items():
-        gov = _constant(Predictor.from_config(load_config(None, **base, **{"learned.tail_backoff": backoff})), 1e-6)
+        gov = constant_governor(Predictor.from_config(load_config(None, **base, **{"learned.tail_backoff": backoff})), 1e-6)
         got = ""
         for _ in range(12):
             rec = gov.update(stall.x_d, stall.x_c, stall.t, stall.tau_prev)
@@ -511,7 +494,7 @@ def test_the_robust_tails_searches_back_off_while_they_find_nothing() -> None:
             got += "K" if rec.path == PATH_KEEP else "T"
         assert got == want, backoff
     # progress found resets the wait: after it, a stall holds for one update again
-    gov = _constant(Predictor.from_config(load_config(None, **base, **{"learned.tail_backoff": 4})), 1e-6)
+    gov = constant_governor(Predictor.from_config(load_config(None, **base, **{"learned.tail_backoff": 4})), 1e-6)
     for _ in range(5):   # T K T K K: the holds done
         gov.update(stall.x_d, stall.x_c, stall.t, stall.tau_prev)
     rec = gov.update(move.x_d, move.x_c, move.t, move.tau_prev)

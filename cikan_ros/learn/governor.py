@@ -192,9 +192,10 @@ class Trust:
         self.retried = False
 
     def grant(self) -> None:
-        """Full trust now (the benchmark times the network's path this way)."""
-        self.credit, self.hits, self.held, self.stall_wait = self.cap, 0, 0, self.stall
-        self.searched, self.retry_wait, self.retried = 0, self.retry, False
+        """Full trust now (the benchmark times the network's path this way): a mission's start,
+        at the cap."""
+        self.reset()
+        self.credit = self.cap
 
     def judge(self, miss: bool) -> None:
         """One trusted update's outcome."""

@@ -308,7 +308,7 @@ class BagWriter:
         self.closed = False
         #: Each topic's metadata.yaml entry but its count, rendered once (:meth:`metadata_text`).
         self.topic_yaml: dict[str, str] = {}
-        #: metadata.yaml's custom_data entry, rendered, and the custom data it renders.
+        #: metadata.yaml's custom_data and ros_distro entries, rendered, and the custom data they render.
         self._custom_yaml: tuple[dict[str, str] | None, str] = (None, "")
         self.write_metadata()
 
@@ -488,13 +488,11 @@ class BagWriter:
         else:
             topics = "  topics_with_message_count: []\n"
         tail = self._metadata_tail(start, end, total)
-        custom = tail.pop("custom_data")
-        distro = {"ros_distro": tail.pop("ros_distro")}
+        custom, distro = tail.pop("custom_data"), tail.pop("ros_distro")   # the tail's last two keys
         if self._custom_yaml[0] != custom:   # rendered again only when the custom data change
-            self._custom_yaml = (dict(custom), yaml.dump({"custom_data": custom}, Dumper=YAML_DUMPER,
-                                                         sort_keys=False))
-        tail_text = (yaml.dump(tail, Dumper=YAML_DUMPER, sort_keys=False) + self._custom_yaml[1]
-                     + yaml.dump(distro, Dumper=YAML_DUMPER, sort_keys=False))
+            self._custom_yaml = (dict(custom), yaml.dump({"custom_data": custom, "ros_distro": distro},
+                                                         Dumper=YAML_DUMPER, sort_keys=False))
+        tail_text = yaml.dump(tail, Dumper=YAML_DUMPER, sort_keys=False) + self._custom_yaml[1]
         return head + topics + _indented(tail_text)
 
     def write_metadata(self) -> None:
