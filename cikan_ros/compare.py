@@ -27,7 +27,7 @@ from typing import Any, Iterable
 
 from .config import Config
 from .errors import CikanError, NoFeasibleShiftError
-from .governor import PATH_NN, PATH_SEARCH, PATH_STALL, PATH_TAIL, UpdateRecord
+from .governor import PATH_NN, SEARCHING_PATHS, UpdateRecord
 from .mission import run_mission, sample_start
 from .montecarlo import process_governor
 from .paired import paired_ratio
@@ -41,8 +41,8 @@ SHIFT_BAND_KEYS = ("updates", "cpu_s", "verify_calls", "searched", "nn")
 
 def shift_bands(active: Iterable[UpdateRecord]) -> list[dict[str, float]]:
     """Per band of :data:`SHIFT_BANDS` (|τ_prev| in (low, high]): the active updates, their CPU
-    time (s), Verify calls, and how many searched like the conventional TSG (paths "search",
-    "stall", "tail") or answered with the network's proposal ("nn")."""
+    time (s), Verify calls, and how many searched (:data:`cikan_ros.governor.SEARCHING_PATHS`:
+    "search", "stall", "tail", "hold", "search-ladder") or answered with the network's proposal ("nn")."""
     out = [{k: 0.0 if k == "cpu_s" else 0 for k in SHIFT_BAND_KEYS} for _ in SHIFT_BANDS]
     for r in active:
         m = abs(r.tau_prev)
@@ -50,7 +50,7 @@ def shift_bands(active: Iterable[UpdateRecord]) -> list[dict[str, float]]:
         band["updates"] += 1
         band["cpu_s"] += r.cpu_s
         band["verify_calls"] += r.verify_calls
-        band["searched"] += r.path in (PATH_SEARCH, PATH_STALL, PATH_TAIL)
+        band["searched"] += r.path in SEARCHING_PATHS
         band["nn"] += r.path == PATH_NN
     return out
 

@@ -479,6 +479,9 @@ LEARNED_ALGORITHMS = ("keep", "paper")
 #: How the keep rule answers robust Verify's tail (|tau_prev| <= learned.robust_tail_s): the
 #: conventional TSG's search, or a search around the last progress (docs/learned_update_rule.md).
 TAIL_RULES = ("gallop", "search")
+#: How the keep rule answers an update while its network is not trusted: the conventional TSG's
+#: search, or a hold test then a search around the last progress (docs/learned_update_rule.md).
+SEARCH_RULES = ("conventional", "hold-first")
 
 
 @dataclass(frozen=True)
@@ -505,6 +508,12 @@ class LearnedConfig:
     tail_budget: int = 5
     tail_min_progress: float = 0.05
     tail_backoff: int = 0
+    search_rule: str = "conventional"
+    hold_test: float = 1e-4
+    hold_first_above_s: float = 0.1
+    search_depth: int = 4
+    search_ladder: tuple[float, ...] = (4.0, 2.0, 1.0, 0.5, 0.25)
+    search_budget: int = 0
     trust_at_start: str = "network"
     foreign_model: bool = False
 
@@ -551,6 +560,19 @@ class LearnedConfig:
                "learned.tail_min_progress", self.tail_min_progress, "must be in [0, 1]")
         _check(isinstance(self.tail_backoff, int) and 0 <= self.tail_backoff <= 1024, "learned.tail_backoff",
                self.tail_backoff, "must be an integer in [0, 1024] (0: off)")
+        _check(self.search_rule in SEARCH_RULES, "learned.search_rule", self.search_rule,
+               f"must be one of {SEARCH_RULES}")
+        _check(math.isfinite(self.hold_test) and 0.0 < self.hold_test < 1.0, "learned.hold_test",
+               self.hold_test, "must be in (0, 1)")
+        _check(math.isfinite(self.hold_first_above_s) and self.hold_first_above_s >= 0.0,
+               "learned.hold_first_above_s", self.hold_first_above_s, "must be a finite number of seconds >= 0")
+        object.__setattr__(self, "search_ladder", tuple(float(f) for f in self.search_ladder))
+        _check(len(self.search_ladder) <= 16 and all(math.isfinite(f) and f > 0 for f in self.search_ladder),
+               "learned.search_ladder", list(self.search_ladder), "must be at most 16 numbers > 0")
+        _check(isinstance(self.search_depth, int) and 0 <= self.search_depth <= 30, "learned.search_depth",
+               self.search_depth, "must be an integer in [0, 30]")
+        _check(isinstance(self.search_budget, int) and 0 <= self.search_budget <= 64, "learned.search_budget",
+               self.search_budget, "must be an integer in [0, 64]")
         _check(self.stall_judge in ("progress", "audit"), "learned.stall_judge", self.stall_judge,
                "must be 'progress' (any progress a stall search finds is a miss) or 'audit' "
                "(only progress beyond audit_step)")

@@ -41,6 +41,10 @@ def test_flat_round_trip():
     ("learned.ladder", [1.0, 0.0], "learned.ladder"),
     ("learned.ladder", [], "learned.ladder"),
     ("learned.probe_every", 0, "learned.probe_every"),
+    ("learned.search_rule", "bisect", "learned.search_rule"),
+    ("learned.hold_test", 0.0, "learned.hold_test"),
+    ("learned.search_ladder", [2.0, -1.0], "learned.search_ladder"),
+    ("learned.search_depth", 31, "learned.search_depth"),
 ])
 def test_invalid_values_are_named(name, value, match):
     with pytest.raises(ConfigError, match=match):

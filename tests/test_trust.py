@@ -501,3 +501,84 @@ def test_the_robust_tails_searches_back_off_while_they_find_nothing() -> None:
     assert rec.path == PATH_TAIL and rec.tau_s != move.tau_prev
     paths = [gov.update(stall.x_d, stall.x_c, stall.t, stall.tau_prev).path for _ in range(3)]
     assert paths == [PATH_TAIL, PATH_KEEP, PATH_TAIL]
+
+
+def test_hold_first_candidates_golden() -> None:
+    """learned.search_rule "hold-first": the shifts verified, closest to 0 first. From τ_prev =
+    -8 s with depth 2: 0 and the midpoints 1/2, 1/4 of the way (-4, -6 s); a last progress of
+    0.01 with ladder factors (2, 1): q = 0.02, 0.01 (-7.84, -7.92 s); the hold test q = 1e-4
+    (-7.9992 s). Ahead (+8 s) the mirror image, and with no progress known (NaN) no ladder. Near
+    0: a hold test below the 10-us tolerance moves by the tolerance (-50 us: -40 us), steps
+    within it are left out, and from within the tolerance only 0 is tried."""
+    from cikan_ros.learn.governor import hold_first_candidates as cands
+
+    tol = 10_000
+    assert cands(-8_000_000_000, 0.01, tol, 1e-4, 2, (2.0, 1.0)).tolist() == [
+        0, -4_000_000_000, -6_000_000_000, -7_840_000_000, -7_920_000_000, -7_999_200_000]
+    assert cands(8_000_000_000, math.nan, tol, 1e-4, 2, (2.0, 1.0)).tolist() == [
+        0, 4_000_000_000, 6_000_000_000, 7_999_200_000]
+    # ladder rungs outside (hold_test, 2^-depth) are left out: 0.01 * 40 = 0.4 > 1/4
+    assert cands(-8_000_000_000, 0.01, tol, 1e-4, 2, (40.0,)).tolist() == [0, -4_000_000_000, -6_000_000_000,
+                                                                           -7_999_200_000]
+    assert cands(-50_000, 0.01, tol, 1e-4, 2, (2.0, 1.0)).tolist() == [0, -25_000, -37_500, -40_000]
+    assert cands(-5_000, 0.01, tol, 1e-4, 2, (2.0, 1.0)).tolist() == [0]
+
+
+@given(tau_prev_ns=st.integers(-10**12, 10**12).filter(lambda v: v != 0),
+       progress=st.one_of(st.just(math.nan), st.floats(0.0, 1.0)),
+       hold=st.floats(1e-9, 0.5), depth=st.integers(0, 12),
+       ladder=st.lists(st.floats(0.01, 100.0), max_size=6))
+@settings(max_examples=300, deadline=None)
+def test_hold_first_candidates_property(tau_prev_ns: int, progress: float, hold: float, depth: int,
+                                        ladder: list[float]) -> None:
+    """Every candidate lies between τ_prev and 0 (0 included), at least the tolerance from τ_prev
+    or 0 itself, on τ_prev's side, in strictly increasing distance from 0; 0 comes first."""
+    from cikan_ros.learn.governor import hold_first_candidates as cands
+
+    tol = 10_000
+    c = cands(tau_prev_ns, progress, tol, hold, depth, tuple(ladder)).tolist()
+    assert c[0] == 0
+    side = 1 if tau_prev_ns > 0 else -1
+    m = [side * v for v in c]
+    assert all(a < b for a, b in zip(m, m[1:]))
+    assert all(0 <= v and (v == 0 or abs(tau_prev_ns) - v >= tol) for v in m)
+
+
+@pytest.mark.parametrize("approach", ["behind", "ahead"])
+def test_the_hold_first_search_verifies_its_candidates_in_order(approach: str) -> None:
+    """learned.search_rule "hold-first", a network never trusted (trust_credit 0), the paper's
+    orbit for an hour: every active update with |τ_prev| above hold_first_above_s (0 here) is a
+    hold (every candidate failed: τ_prev, as many calls as candidates) or the first candidate
+    that passes, each judged here by Verify on the anchored chief, candidate by candidate; the
+    zero test follows only an answer whose candidate 0 was not tried first (never here: 0 comes
+    first). Both kinds occur, and the mission flies without a violation."""
+    from cikan_ros.governor import PATH_HOLD, PATH_SEARCH_LADDER, PATH_VERIFY_ZERO
+    from cikan_ros.learn.governor import hold_first_candidates
+
+    cfg = load_config(None, **{"learned.trust_credit": 0, "learned.search_rule": "hold-first",
+                               "learned.hold_first_above_s": 0.0, "mission.duration_s": 3600.0,
+                               "mission.approach": approach})
+    lc = cfg.learned
+    pred = Predictor.from_config(cfg)
+    gov = constant_governor(pred, 3.0)
+    res = run_mission(gov, sample_start(pred, 3), 3)
+    assert res.metrics()["violations"] == 0
+    active = [u for u in res.updates if u.active]
+    assert {u.path for u in active} <= {PATH_HOLD, PATH_SEARCH_LADDER, PATH_VERIFY_ZERO}
+    assert {PATH_HOLD, PATH_SEARCH_LADDER} <= {u.path for u in active}
+    progress = math.nan
+    records = {u.k: u for u in active}
+    for s in res.update_states():
+        u = records[s.k]
+        anchored = gov.anchor(s.x_c, s.t)
+        ns = hold_first_candidates(round(s.tau_prev * 1e9), progress, pred.tol_ns, lc.hold_test,
+                                   lc.search_depth, lc.search_ladder)
+        passed = [anchored.verify(s.x_d, s.t, c / 1e9) for c in ns]
+        first = next((j for j, ok in enumerate(passed) if ok), None)
+        if first is None:
+            assert (u.path, u.tau_s, u.verify_calls) == (PATH_HOLD, u.tau_prev, len(ns))
+        else:
+            assert u.path in (PATH_SEARCH_LADDER, PATH_VERIFY_ZERO) and u.verify_calls == first + 1
+            assert u.tau_s == ns[first] / 1e9
+        if u.tau_s != u.tau_prev:
+            progress = 1.0 - u.tau_s / u.tau_prev

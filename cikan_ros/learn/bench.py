@@ -32,7 +32,7 @@ conventional TSG and in the same run, under the default update rule (``learned.a
   per active update as flown: it flatters a governor that lags π* and flies more of the cheap
   updates near τ = 0),
   ``<m>_mission_verify_calls_mean``, ``<m>_search_rate``: the share of those updates answered by
-  searching (paths "search", "stall" and "tail"), and ``<m>_mission_nn_accept_rate``
+  searching (:data:`cikan_ros.governor.SEARCHING_PATHS`), and ``<m>_mission_nn_accept_rate``
   (:func:`mission_figures`); ``cikan bench`` shows these first;
 - ``learned_foreign_models``: the models flown with ``learned.foreign_model`` (made for another
   scenario, side or Verify: :func:`cikan_ros.learn.governor.load_learned_governor`) and why;
@@ -196,10 +196,10 @@ def mission_figures(conventional: Any, governors: list[Any], states: BenchStates
     pooled mean CPU per active update: it flatters a governor that lags pi* and flies more of the
     cheap updates near tau = 0, so it is second), ``_mission_verify_calls_mean`` (per active
     update), ``_search_rate`` (share of its active updates answered by searching: paths
-    "search", "stall" and "tail") and ``_mission_nn_accept_rate`` (share answered with the
+    "search", "stall", "tail", "hold" and "search-ladder") and ``_mission_nn_accept_rate`` (share answered with the
     network's proposal, :func:`cikan_ros.learn.governor.nn_accept_rate`, pooled)."""
     from ..mission import run_mission
-    from .governor import SEARCHED, nn_accept_rate
+    from .governor import SEARCHING, nn_accept_rate
 
     # per governor, per start: the active updates of its mission
     flown: dict[str, list[list[Any]]] = {g.name: [] for g in [conventional] + governors}
@@ -235,6 +235,6 @@ def mission_figures(conventional: Any, governors: list[Any], states: BenchStates
         out[f"{g}_mission_cpu_speedup"] = conv_total / cpu_total(updates)
         out[f"{g}_flown_update_speedup"] = conv / mean
         out[f"{g}_mission_verify_calls_mean"] = calls_mean(updates)
-        out[f"{g}_search_rate"] = sum(u.path in SEARCHED for u in updates) / len(updates)
+        out[f"{g}_search_rate"] = sum(u.path in SEARCHING for u in updates) / len(updates)
         out[f"{g}_mission_nn_accept_rate"] = nn_accept_rate(updates)
     return out

@@ -64,8 +64,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..config import Config, Side, scenario_names, truth_names
-from ..governor import (PATH_AUDIT, PATH_BISECT, PATH_GALLOP, PATH_INITIAL, PATH_KEEP, PATH_NN, PATH_NN_BISECT, PATH_PROBE,
-                        PATH_SEARCH, PATH_STALL, PATH_TAIL, PATH_VERIFY_ZERO, PATH_ZERO, UpdateRecord,
+from ..governor import (PATH_AUDIT, PATH_BISECT, PATH_GALLOP, PATH_HOLD, PATH_INITIAL, PATH_KEEP, PATH_NN,
+                        PATH_NN_BISECT, PATH_PROBE, PATH_SEARCH, PATH_SEARCH_LADDER, PATH_STALL, PATH_TAIL,
+                        PATH_VERIFY_ZERO, PATH_ZERO, SEARCHING_PATHS, UpdateRecord,
                         initial_update, make_record, start_clock, update_index)
 from ..tsg import ChiefAnchor, ChiefCache, Predictor, quantise_shift
 from ..units import ns_to_seconds, seconds_to_ns as to_ns
@@ -86,6 +87,7 @@ RETRY_BACKOFF = 8
 TAIL_MISSES = 2
 #: Paths answered by the conventional TSG's search (its own zero test included).
 SEARCHED = (PATH_SEARCH, PATH_STALL, PATH_TAIL)
+SEARCHING = SEARCHING_PATHS
 
 
 def stall_miss(side: Side, tau_prev: float, tau: float, reach: float) -> bool:
@@ -305,11 +307,12 @@ class LearnedGovernor:
         else:
             tau, path, calls, cache = self._keep(pred, x_d, t, tau_prev, propose, k)
         if (path not in SEARCHED and tau != 0.0 and abs(tau) <= pred.config.tsg.zero_snap_s
-                and not (path == PATH_GALLOP and self._zero_failed)):  # the gallop's own candidate 0 failed
+                and not (path in (PATH_GALLOP, PATH_SEARCH_LADDER, PATH_HOLD)
+                         and self._zero_failed)):  # this update verified 0 itself, and it failed
             calls += 1
             if pred.verify(x_d, t, 0.0, cache or pred.cache(t)):
                 tau, path = 0.0, PATH_VERIFY_ZERO
-        self.trust.after_update(tau != tau_prev, path in SEARCHED)
+        self.trust.after_update(tau != tau_prev, path in SEARCHING)
         if tau != tau_prev:
             self._progress = 1.0 - tau / tau_prev
         return make_record(started, tau, path, calls, k, tau_prev)
@@ -361,11 +364,41 @@ class LearnedGovernor:
         the proposal τ_c is judged against it (:meth:`would_pay`, a shadow judgement), the
         network consulted only when π* gives evidence (:meth:`judgeable`): in GEO, where the
         rule searches on most updates, the forward passes skipped were 10 % of the active
-        updates' CPU (6 starts, same decisions)."""
+        updates' CPU (6 starts, same decisions). With ``learned.search_rule`` "hold-first", the
+        hold test and a gallop instead (:meth:`_hold_first`)."""
+        lc = pred.config.learned
+        if lc.search_rule == "hold-first" and abs(tau_prev) > lc.hold_first_above_s:
+            return self._hold_first(pred, x_d, t, tau_prev, propose)
         tau, calls = pred.optimal_shift(x_d, t, tau_prev)
         if self.judgeable(tau_prev, tau):
             self.trust.shadow(bool(self.would_pay(propose(), tau_prev, tau)))
         return tau, PATH_SEARCH, calls, None
+
+    def _hold_first(self, pred: Predictor, x_d: ArrayLike, t: float, tau_prev: float,
+                    propose: Callable[[], float]) -> tuple[float, str, int, ChiefCache]:
+        """A searching update (network not trusted), ``learned.search_rule`` "hold-first": the
+        candidates of :func:`hold_first_candidates` verified in order, closest to 0 first, one
+        compiled call. None passes: τ_prev is held [hold]. One passes: that shift, or with
+        ``search_budget`` > 0 the bisection between it and the candidate before it with at most
+        that many calls [search-ladder]. The proposal is judged against the answer as against π*
+        (a shadow judgement, :meth:`would_pay`). Safe: every answer passed Verify or is τ_prev.
+        Why (docs/learned_update_rule.md, "A search that holds first"): in GEO's first phase π*
+        holds on two thirds of the updates, where the bisection spends ~19 failing calls, and a
+        shift just above τ_prev fails early (39 us against a passing Verify's ~300 us)."""
+        lc = pred.config.learned
+        cache = pred.cache(t)
+        ns = hold_first_candidates(to_ns(tau_prev), self._progress, pred.tol_ns, lc.hold_test,
+                                   lc.search_depth, lc.search_ladder)
+        tau, index, calls = pred.first_feasible_ns(x_d, t, ns, to_ns(tau_prev), 0, cache)
+        self._zero_failed = index != 0   # candidate 0 came first: failed, or never reached
+        if index < 0:
+            return tau_prev, PATH_HOLD, calls, cache
+        if index > 0 and lc.search_budget:
+            tau, c = pred.bisect(x_d, t, tau, ns_to_seconds(int(ns[index - 1])), cache, lc.search_budget)
+            calls += c
+        if self.judgeable(tau_prev, tau):
+            self.trust.shadow(bool(self.would_pay(propose(), tau_prev, tau)))
+        return tau, PATH_SEARCH_LADDER, calls, cache
 
     def _stall(self, pred: Predictor, x_d: ArrayLike, t: float, tau_prev: float
                ) -> tuple[float, str, int, None]:
@@ -544,13 +577,35 @@ class LearnedGovernor:
         return [ns_to_seconds(int(v)) for v in out[:n]]
 
 
+def hold_first_candidates(tau_prev_ns: int, progress: float, tol_ns: int, hold_test: float, depth: int,
+                          ladder: tuple[float, ...]) -> NDArray:
+    """The shifts (int64 ns, closest to 0 first, no repeats) the hold-first search verifies from
+    τ_prev (ns, either side of 0): the bisection's first midpoints, fractions q = 1 (0 itself),
+    1/2, ..., 2^-depth of the way from τ_prev to 0, where a jump of π* over an infeasible gap
+    lands; the last update's progress times each ``ladder`` factor (only those with hold_test <
+    q < 2^-depth, and only with a progress above hold_test: NaN, none); last the hold test, q =
+    hold_test but at least ``tol_ns`` from τ_prev (0 when |τ_prev| <= tol_ns). A candidate within
+    ``tol_ns`` of τ_prev is left out (the bisection's tolerance: no step worth a Verify)."""
+    qs = [0.5 ** j for j in range(depth + 1)]
+    if progress > hold_test:
+        qs += [progress * f for f in ladder if hold_test < progress * f < 0.5 ** depth]
+    out = {0 if q >= 1.0 else int(round(tau_prev_ns * (1.0 - q))) for q in qs}
+    out = {c for c in out if abs(tau_prev_ns - c) >= tol_ns}   # a step below the tolerance: none
+    hold_ns = int(round(tau_prev_ns * (1.0 - hold_test)))
+    if abs(tau_prev_ns - hold_ns) < tol_ns:
+        hold_ns = 0 if abs(tau_prev_ns) <= tol_ns else tau_prev_ns - int(math.copysign(tol_ns, tau_prev_ns))
+    out.add(hold_ns)
+    return np.array(sorted(out, key=abs), dtype=np.int64)
+
+
 def nn_accept_rate(updates: Iterable[UpdateRecord]) -> float | None:
     """The network's acceptance: the share of the active updates (tau_{k-1} != 0, SPEC §9) whose
     answer is the network's proposal, passed by Verify (path "nn"). The one definition of the
     per-run metric, Table 2, the campaign summaries and the scenario index. None without an
     active update.
 
-    An update where the network was not trusted (path "search", "stall" or "tail"), held tau_{k-1}
+    An update where the network was not trusted (path "search", "stall", "tail", "hold" or
+    "search-ladder"), held tau_{k-1}
     ("keep") or searched after its candidates failed counts as not accepted: what the figure
     says is how often the network, not the search, decided. A proposal that passed Verify and
     was then snapped to 0 by the zero test counts as not accepted (its path is "verify-zero");
