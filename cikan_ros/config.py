@@ -509,11 +509,12 @@ class LearnedConfig:
     tail_min_progress: float = 0.05
     tail_backoff: int = 0
     search_rule: str = "conventional"
-    hold_test: float = 1e-4
+    hold_test: float = 1e-3
     hold_first_above_s: float = 0.1
     search_depth: int = 4
     search_ladder: tuple[float, ...] = (4.0, 2.0, 1.0, 0.5, 0.25)
     search_budget: int = 0
+    search_backoff: int = 0
     trust_at_start: str = "network"
     foreign_model: bool = False
 
@@ -571,6 +572,8 @@ class LearnedConfig:
                "learned.search_ladder", list(self.search_ladder), "must be at most 16 numbers > 0")
         _check(isinstance(self.search_depth, int) and 0 <= self.search_depth <= 30, "learned.search_depth",
                self.search_depth, "must be an integer in [0, 30]")
+        _check(isinstance(self.search_backoff, int) and 0 <= self.search_backoff <= 1024, "learned.search_backoff",
+               self.search_backoff, "must be an integer in [0, 1024] (0: off)")
         _check(isinstance(self.search_budget, int) and 0 <= self.search_budget <= 64, "learned.search_budget",
                self.search_budget, "must be an integer in [0, 64]")
         _check(self.stall_judge in ("progress", "audit"), "learned.stall_judge", self.stall_judge,

@@ -547,29 +547,35 @@ def test_hold_first_candidates_property(tau_prev_ns: int, progress: float, hold:
 @pytest.mark.parametrize("approach", ["behind", "ahead"])
 def test_the_hold_first_search_verifies_its_candidates_in_order(approach: str) -> None:
     """learned.search_rule "hold-first", a network never trusted (trust_credit 0), the paper's
-    orbit for an hour: every active update with |τ_prev| above hold_first_above_s (0 here) is a
-    hold (every candidate failed: τ_prev, as many calls as candidates) or the first candidate
-    that passes, each judged here by Verify on the anchored chief, candidate by candidate; the
-    zero test follows only an answer whose candidate 0 was not tried first (never here: 0 comes
-    first). Both kinds occur, and the mission flies without a violation."""
-    from cikan_ros.governor import PATH_HOLD, PATH_SEARCH_LADDER, PATH_VERIFY_ZERO
+    orbit for an hour: every active update with |τ_prev| above hold_first_above_s (0 here) is
+    the first candidate that passes [search-ladder], or, none passing, τ_prev [hold] with as
+    many calls as candidates, each judged here by Verify on the anchored chief, candidate by
+    candidate; after such a hold the next 1, 2, 4, ... (at most search_backoff) updates hold
+    without a call, and progress found resets the wait. All three kinds occur, and the mission
+    flies without a violation."""
+    from cikan_ros.governor import PATH_HOLD, PATH_SEARCH_LADDER
     from cikan_ros.learn.governor import hold_first_candidates
 
     cfg = load_config(None, **{"learned.trust_credit": 0, "learned.search_rule": "hold-first",
-                               "learned.hold_first_above_s": 0.0, "mission.duration_s": 3600.0,
-                               "mission.approach": approach})
+                               "learned.hold_first_above_s": 0.0, "learned.search_backoff": 4,
+                               "mission.duration_s": 3600.0, "mission.approach": approach})
     lc = cfg.learned
     pred = Predictor.from_config(cfg)
     gov = constant_governor(pred, 3.0)
     res = run_mission(gov, sample_start(pred, 3), 3)
     assert res.metrics()["violations"] == 0
     active = [u for u in res.updates if u.active]
-    assert {u.path for u in active} <= {PATH_HOLD, PATH_SEARCH_LADDER, PATH_VERIFY_ZERO}
-    assert {PATH_HOLD, PATH_SEARCH_LADDER} <= {u.path for u in active}
-    progress = math.nan
+    assert {u.path for u in active} <= {PATH_HOLD, PATH_SEARCH_LADDER}
+    kinds = {(u.path, u.verify_calls > 0) for u in active}
+    assert kinds == {(PATH_HOLD, True), (PATH_HOLD, False), (PATH_SEARCH_LADDER, True)}, kinds
+    progress, wait, holds = math.nan, 0, 0
     records = {u.k: u for u in active}
     for s in res.update_states():
         u = records[s.k]
+        if holds:
+            assert (u.path, u.tau_s, u.verify_calls) == (PATH_HOLD, u.tau_prev, 0)
+            holds -= 1
+            continue
         anchored = gov.anchor(s.x_c, s.t)
         ns = hold_first_candidates(round(s.tau_prev * 1e9), progress, pred.tol_ns, lc.hold_test,
                                    lc.search_depth, lc.search_ladder)
@@ -577,8 +583,36 @@ def test_the_hold_first_search_verifies_its_candidates_in_order(approach: str) -
         first = next((j for j, ok in enumerate(passed) if ok), None)
         if first is None:
             assert (u.path, u.tau_s, u.verify_calls) == (PATH_HOLD, u.tau_prev, len(ns))
+            wait = min(max(2 * wait, 1), lc.search_backoff)
+            holds = wait
         else:
-            assert u.path in (PATH_SEARCH_LADDER, PATH_VERIFY_ZERO) and u.verify_calls == first + 1
-            assert u.tau_s == ns[first] / 1e9
+            assert (u.path, u.tau_s, u.verify_calls) == (PATH_SEARCH_LADDER, ns[first] / 1e9, first + 1)
+            wait = 0
         if u.tau_s != u.tau_prev:
             progress = 1.0 - u.tau_s / u.tau_prev
+
+
+def test_the_stall_rule_searches_as_the_search_rule_says(predictor: Predictor) -> None:
+    """With learned.search_rule "hold-first" the stall rule's search is the hold-first search:
+    the network that never proposes progress (constant 1e6 s) holds τ_0 for three updates, and
+    the fourth answers the first of hold_first_candidates (no progress known yet) that passes
+    Verify on the anchored chief (τ_prev after as many calls when none does), path "stall"."""
+    from cikan_ros.learn.governor import hold_first_candidates
+
+    cfg = predictor.config.replace(**{"learned.audit_step": 0.0, "learned.probe_budget": 0,
+                                      "learned.stall_updates": 3, "learned.trust_retry": 0,
+                                      "learned.search_rule": "hold-first", "learned.hold_first_above_s": 0.0,
+                                      "mission.duration_s": 900.0})
+    pred = Predictor.from_config(cfg)
+    gov = constant_governor(pred, 1e6)
+    res = run_mission(gov, sample_start(pred, 1), 1)
+    active = [u for u in res.updates if u.active]
+    assert [u.path for u in active[:4]] == [PATH_KEEP] * 3 + [PATH_STALL]
+    s = next(s for s in res.update_states() if s.k == active[3].k)
+    lc = cfg.learned
+    ns = hold_first_candidates(round(s.tau_prev * 1e9), math.nan, pred.tol_ns, lc.hold_test,
+                               lc.search_depth, lc.search_ladder)
+    anchored = gov.anchor(s.x_c, s.t)
+    first = next((j for j, c in enumerate(ns) if anchored.verify(s.x_d, s.t, c / 1e9)), None)
+    expected = (s.tau_prev, len(ns)) if first is None else (ns[first] / 1e9, first + 1)
+    assert (active[3].tau_s, active[3].verify_calls) == expected

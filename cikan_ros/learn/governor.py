@@ -287,6 +287,7 @@ class LearnedGovernor:
         governor would make it (:func:`cikan_ros.timing.prime`)."""
         self._progress, self._tail_misses = float(progress), 0
         self._tail_holds, self._tail_wait = 0, 0
+        self._search_holds, self._search_wait = 0, 0
 
     def initial(self, x_d: ArrayLike, x_c: ArrayLike, t: float) -> UpdateRecord:
         self.trust.reset()
@@ -359,65 +360,71 @@ class LearnedGovernor:
         return self._judge(pred, x_d, t, tau_prev, step)
 
     def _search(self, pred: Predictor, x_d: ArrayLike, t: float, tau_prev: float,
-                propose: Callable[[], float]) -> tuple[float, str, int, None]:
-        """Trust, c = 0 (searching): π* as the conventional TSG finds it (its zero test first);
-        the proposal τ_c is judged against it (:meth:`would_pay`, a shadow judgement), the
-        network consulted only when π* gives evidence (:meth:`judgeable`): in GEO, where the
+                propose: Callable[[], float]) -> tuple[float, str, int, ChiefCache | None]:
+        """Trust, c = 0 (searching): the rule's search (:meth:`_searched`: π* as the conventional
+        TSG finds it [search], or the hold-first search [hold, search-ladder]); the proposal τ_c
+        is judged against its answer (:meth:`would_pay`, a shadow judgement), the network
+        consulted only when the answer gives evidence (:meth:`judgeable`): in GEO, where the
         rule searches on most updates, the forward passes skipped were 10 % of the active
-        updates' CPU (6 starts, same decisions). With ``learned.search_rule`` "hold-first", the
-        hold test and a gallop instead (:meth:`_hold_first`)."""
-        lc = pred.config.learned
-        if lc.search_rule == "hold-first" and abs(tau_prev) > lc.hold_first_above_s:
-            return self._hold_first(pred, x_d, t, tau_prev, propose)
-        tau, calls = pred.optimal_shift(x_d, t, tau_prev)
+        updates' CPU (6 starts, same decisions)."""
+        tau, calls, cache, path = self._searched(pred, x_d, t, tau_prev)
         if self.judgeable(tau_prev, tau):
             self.trust.shadow(bool(self.would_pay(propose(), tau_prev, tau)))
-        return tau, PATH_SEARCH, calls, None
+        return tau, path, calls, cache
 
-    def _hold_first(self, pred: Predictor, x_d: ArrayLike, t: float, tau_prev: float,
-                    propose: Callable[[], float]) -> tuple[float, str, int, ChiefCache]:
-        """A searching update (network not trusted), ``learned.search_rule`` "hold-first": the
-        candidates of :func:`hold_first_candidates` verified in order, closest to 0 first, one
-        compiled call. None passes: τ_prev is held [hold]. One passes: that shift, or with
-        ``search_budget`` > 0 the bisection between it and the candidate before it with at most
-        that many calls [search-ladder]. The proposal is judged against the answer as against π*
-        (a shadow judgement, :meth:`would_pay`). Safe: every answer passed Verify or is τ_prev.
-        Why (docs/learned_update_rule.md, "A search that holds first"): in GEO's first phase π*
-        holds on two thirds of the updates, where the bisection spends ~19 failing calls, and a
-        shift just above τ_prev fails early (39 us against a passing Verify's ~300 us)."""
+    def _searched(self, pred: Predictor, x_d: ArrayLike, t: float, tau_prev: float
+                  ) -> tuple[float, int, ChiefCache | None, str]:
+        """The search of a searching or stalled update: (τ, Verify calls, chief cache or None,
+        path). ``learned.search_rule`` "conventional", or |τ_prev| <= ``hold_first_above_s``:
+        the conventional TSG's update [search]. "hold-first": the candidates of
+        :func:`hold_first_candidates` verified in order, closest to 0 first, one compiled call;
+        none passes: τ_prev [hold]; one passes: that shift, or with ``search_budget`` > 0 the
+        bisection between it and the candidate before it with at most that many calls
+        [search-ladder]. Safe: every answer passed Verify or is τ_prev. Why
+        (docs/learned_update_rule.md, "A search that holds first"): in GEO's first phase π* holds
+        on two thirds of the updates, where the bisection spends ~19 failing calls, and a shift
+        just above τ_prev fails early (39 us against a passing Verify's ~300 us)."""
         lc = pred.config.learned
+        if lc.search_rule != "hold-first" or abs(tau_prev) <= lc.hold_first_above_s:
+            tau, calls = pred.optimal_shift(x_d, t, tau_prev)
+            return tau, calls, None, PATH_SEARCH
+        if self._search_holds > 0:   # learned.search_backoff: the last search found nothing
+            self._search_holds -= 1
+            return tau_prev, 0, None, PATH_HOLD
         cache = pred.cache(t)
         ns = hold_first_candidates(to_ns(tau_prev), self._progress, pred.tol_ns, lc.hold_test,
                                    lc.search_depth, lc.search_ladder)
         tau, index, calls = pred.first_feasible_ns(x_d, t, ns, to_ns(tau_prev), 0, cache)
         self._zero_failed = index != 0   # candidate 0 came first: failed, or never reached
         if index < 0:
-            return tau_prev, PATH_HOLD, calls, cache
+            if lc.search_backoff:
+                self._search_wait = min(max(2 * self._search_wait, 1), lc.search_backoff)
+                self._search_holds = self._search_wait
+            return tau_prev, calls, cache, PATH_HOLD
+        self._search_wait = 0
         if index > 0 and lc.search_budget:
             tau, c = pred.bisect(x_d, t, tau, ns_to_seconds(int(ns[index - 1])), cache, lc.search_budget)
             calls += c
-        if self.judgeable(tau_prev, tau):
-            self.trust.shadow(bool(self.would_pay(propose(), tau_prev, tau)))
-        return tau, PATH_SEARCH_LADDER, calls, cache
+        return tau, calls, cache, PATH_SEARCH_LADDER
 
     def _stall(self, pred: Predictor, x_d: ArrayLike, t: float, tau_prev: float
-               ) -> tuple[float, str, int, None]:
+               ) -> tuple[float, str, int, ChiefCache | None]:
         """The stall rule: τ_prev held for learned.stall_updates trusted updates in a row.
 
         Either π* = τ_prev (a stall: every network looks alike) or the feasible progress per
         update is below every step the rule tries (measured in GEO's approach-speed-bound tail:
         ~0.4 % of |τ| per update, against the audit's 10 %), which would hold τ for good. So
-        search like the conventional TSG. Progress found is a miss (with stall_judge "audit":
-        only progress beyond the audit's reach, as for the audit). A search that finds nothing
-        backs off (true stalls are common on the paper's orbit, where the deputy rides the
-        cone's edge)."""
+        search as a searching update does (:meth:`_searched`). Progress found is a miss (with
+        stall_judge "audit": only progress beyond the audit's reach, as for the audit). A search
+        that finds nothing backs off (true stalls are common on the paper's orbit, where the
+        deputy rides the cone's edge)."""
         lc = pred.config.learned
-        tau, calls = pred.optimal_shift(x_d, t, tau_prev)
+        tau, calls, cache, _ = self._searched(pred, x_d, t, tau_prev)
         if tau == tau_prev:
             self.trust.stall_found_nothing()
         elif stall_miss(pred.side, tau_prev, tau, lc.audit_step if lc.stall_judge == "audit" else 0.0):
             self.trust.judge(True)
-        return tau, PATH_STALL, calls, None
+        return tau, PATH_STALL, calls, cache
 
     @staticmethod
     def _robust_tail(pred: Predictor, tau_prev: float) -> bool:
