@@ -248,8 +248,11 @@ scenario-results: $(STAMP)
 	done; done; done
 	$(MAKE) scenario-index
 
-# The index of every scenario campaign flown so far (docs/results/scenarios/README.md).
+# The index of every scenario campaign flown so far (docs/results/scenarios/README.md): a world whose
+# runs are under runs/scenario-results from them (its rows kept in docs/results/scenarios/<world>/
+# index_rows.md), any other from its kept rows, so one world can be flown again alone.
 scenario-index: $(STAMP)
+	mkdir -p runs/scenario-results
 	$(BIN)/cikan report runs/scenario-results --scenarios --out docs/results/scenarios \
 		--bench docs/results/scenarios/bench --notes docs/results/scenarios_notes.md
 

@@ -548,3 +548,28 @@ def test_report_on_the_mcap_file_is_the_bags_report(tmp_path, capsys):
     assert (tmp_path / "file" / "report.md").read_text() == (tmp_path / "dir" / "report.md").read_text()
     rc, err = _report(capsys, str(BAG / "metadata.yaml"), "--out", str(tmp_path / "x"))
     assert rc == 2 and err.count("\n") == 1 and "is a file" in err
+
+
+def test_the_scenario_index_keeps_the_rows_of_worlds_not_flown_here(campaign, tmp_path):
+    """`make scenario-index` with one world's runs on the machine: that world's rows come from its
+    runs (and are kept in its page's index_rows.md), every other world's from the rows kept beside
+    its page at its last flight, in world order, and the page says which were kept; a world flown
+    again replaces its kept rows."""
+    from cikan_ros.analysis.table import INDEX_ROWS, campaign_rows, scenarios_index
+
+    runs, pages = tmp_path / "runs", tmp_path / "pages"
+    shutil.copytree(campaign, runs / "paper-behind")
+    (pages / "leo-ahead").mkdir(parents=True)
+    kept = "| leo | ahead | nominal | conventional | 100 | 100 | 0 | 5 | 0.8941 | - | - | 1.00 / 1.00 | - |"
+    (pages / "leo-ahead" / INDEX_ROWS).write_text(kept + "\n")
+    fresh = campaign_rows(runs / "paper-behind")
+    assert len(fresh) == 2   # the campaign fixture: the conventional TSG and cikan
+    lines = scenarios_index(runs, pages).splitlines()
+    assert lines[2:3 + len(fresh)] == [kept] + fresh        # leo-ahead sorts before paper-behind
+    assert (pages / "paper-behind" / INDEX_ROWS).read_text().splitlines() == fresh
+    said = [line for line in lines if line.startswith("Rows of ")]
+    assert len(said) == 1 and "leo-ahead" in said[0] and "paper-behind" not in said[0]
+    shutil.copytree(campaign, runs / "leo-ahead")             # flown again
+    lines = scenarios_index(runs, pages).splitlines()
+    assert kept not in lines and not any(line.startswith("Rows of ") for line in lines)
+    assert (pages / "leo-ahead" / INDEX_ROWS).read_text().splitlines() == fresh

@@ -319,34 +319,67 @@ def per_start_worst(mc_dir: str | Path, governor: str) -> tuple[float, float]:
     return dv, max(tt) if tt else math.nan
 
 
-def scenarios_index(root: str | Path) -> str:
+#: A campaign's rows of the scenario index, kept beside its page (``<pages>/<world>/``, e.g.
+#: docs/results/scenarios/geo-behind/): a world whose runs are not on the machine is indexed
+#: from there, so one world can be flown again without the others' runs.
+INDEX_ROWS = "index_rows.md"
+SCENARIOS_HEADER = ("| scenario | side | Verify | governor | runs | docked | violations | between samples "
+                    "| ΔV mean (km/s) | ΔV vs conv. (worst start) | t(τ=0) vs conv. (worst start) "
+                    "| mission speed-up mean / worst start | NN accept |")
+
+
+def campaign_rows(mc_dir: str | Path) -> list[str]:
+    """The scenario index's rows of one campaign (``make scenario-result``): each governor's
+    docking, violations, ΔV and time to τ = 0 against the conventional TSG of the same campaign
+    (mean ratio, and the worst start), and the speed-up of its whole missions (the conventional
+    TSG's active-update CPU from the same start over its own: mean over the starts, and the
+    worst)."""
+    scenario, approach, verify = campaign_world(mc_dir)
+    lines = []
+    for r in build_table(mc_dir, with_rmse=False):
+        g = r["model"]
+        if g == "conventional":
+            vs = tvs = "-"
+            mission = "1.00 / 1.00"
+        else:
+            mission = f"{_fmt(r['mission_speedup_mean'], '.2f')} / {_fmt(r['mission_speedup_worst'], '.2f')}"
+            wdv, wt = per_start_worst(mc_dir, g)
+            vs = f"{r['delta_v_vs_conventional']:+.1%} ({wdv - 1:+.0%})"
+            tvs = f"{r['t_tau_zero_vs_conventional']:+.1%} ({wt - 1:+.0%})"
+        lines.append(
+            f"| {scenario} | {approach} | {verify} | {g} | {r['runs']} | {r['successes']} | {r['violations']} "
+            f"| {_fmt(r['violations_between'], 'd')} | {_fmt(r['delta_v_kmps_mean'], '.4f')} | {vs} | {tvs} "
+            f"| {mission} | {_fmt(r['nn_accept_rate'], '.3f')} |")
+    return lines
+
+
+def scenarios_index(root: str | Path, pages: str | Path | None = None) -> str:
     """Markdown: one block of rows per campaign directory under ``root`` (``make
     scenario-results``: runs/scenario-results/<scenario>-<side>[-robust], the Verify mode read from
-    the runs), each governor's docking,
-    violations, ΔV and time to τ = 0 against the conventional TSG of the same campaign (mean
-    ratio, and the worst start), and the speed-up of its whole missions (the conventional TSG's
-    active-update CPU from the same start over its own: mean over the starts, and the worst)."""
-    lines = ["| scenario | side | Verify | governor | runs | docked | violations | between samples "
-             "| ΔV mean (km/s) | ΔV vs conv. (worst start) | t(τ=0) vs conv. (worst start) "
-             "| mission speed-up mean / worst start | NN accept |", "|" + "---|" * 13]
+    the runs; :func:`campaign_rows`). With ``pages`` (the index's own directory, one
+    subdirectory per world's page): each campaign's rows are also written to
+    ``<pages>/<world>/index_rows.md``, and a world with a page but no campaign under ``root`` is
+    indexed from its kept rows (its last flight), said under the table."""
+    blocks: dict[str, list[str]] = {}
     for d in sorted(p for p in Path(root).iterdir() if p.is_dir()):
-        scenario, approach, verify = campaign_world(d)
-        for r in build_table(d, with_rmse=False):
-            g = r["model"]
-            if g == "conventional":
-                vs = "-"
-                tvs = "-"
-                mission = "1.00 / 1.00"
-            else:
-                mission = f"{_fmt(r['mission_speedup_mean'], '.2f')} / {_fmt(r['mission_speedup_worst'], '.2f')}"
-                wdv, wt = per_start_worst(d, g)
-                vs = f"{r['delta_v_vs_conventional']:+.1%} ({wdv - 1:+.0%})"
-                tvs = f"{r['t_tau_zero_vs_conventional']:+.1%} ({wt - 1:+.0%})"
-            lines.append(
-                f"| {scenario} | {approach} | {verify} | {g} | {r['runs']} | {r['successes']} | {r['violations']} "
-                f"| {_fmt(r['violations_between'], 'd')} | {_fmt(r['delta_v_kmps_mean'], '.4f')} | {vs} | {tvs} "
-                f"| {mission} | {_fmt(r['nn_accept_rate'], '.3f')} |")
-    return "\n".join(lines) + "\n"
+        blocks[d.name] = campaign_rows(d)
+        if pages is not None:
+            (Path(pages) / d.name).mkdir(parents=True, exist_ok=True)
+            (Path(pages) / d.name / INDEX_ROWS).write_text("\n".join(blocks[d.name]) + "\n")
+    kept = []
+    if pages is not None and Path(pages).is_dir():
+        for f in sorted(Path(pages).glob(f"*/{INDEX_ROWS}")):
+            if f.parent.name not in blocks:
+                blocks[f.parent.name] = [line for line in f.read_text().splitlines() if line.startswith("| ")]
+                kept.append(f.parent.name)
+    lines = [SCENARIOS_HEADER, "|" + "---|" * 13]
+    for world in sorted(blocks):
+        lines += blocks[world]
+    text = "\n".join(lines) + "\n"
+    if kept:
+        text += (f"\nRows of {', '.join(kept)} as last flown (their runs are not under {root}; "
+                 f"kept in each world's {INDEX_ROWS}).\n")
+    return text
 
 
 def bench_files(root: str | Path) -> list[tuple[Path, str, str, str, dict[str, Any]]]:

@@ -75,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
             if args.bench:
                 speed = (f"\n## Speed (`cikan bench --json`, files in {args.bench})\n\n"
                          + bench_index(args.bench))
-            return scenarios_index(args.source) + speed
+            return scenarios_index(args.source, args.out) + speed
 
         bench_arg = f" --bench {args.bench}" if args.bench else ""
         return _index_page(args.out, [args.source] + ([args.bench] if args.bench else []),
