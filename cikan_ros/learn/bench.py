@@ -199,7 +199,8 @@ def mission_figures(conventional: Any, governors: list[Any], states: BenchStates
     "search", "stall", "tail", "hold" and "search-ladder") and ``_mission_nn_accept_rate`` (share answered with the
     network's proposal, :func:`cikan_ros.learn.governor.nn_accept_rate`, pooled)."""
     from ..mission import run_mission
-    from .governor import SEARCHING, nn_accept_rate
+    from ..governor import SEARCHING_PATHS
+    from .governor import nn_accept_rate
 
     # per governor, per start: the active updates of its mission
     flown: dict[str, list[list[Any]]] = {g.name: [] for g in [conventional] + governors}
@@ -235,6 +236,6 @@ def mission_figures(conventional: Any, governors: list[Any], states: BenchStates
         out[f"{g}_mission_cpu_speedup"] = conv_total / cpu_total(updates)
         out[f"{g}_flown_update_speedup"] = conv / mean
         out[f"{g}_mission_verify_calls_mean"] = calls_mean(updates)
-        out[f"{g}_search_rate"] = sum(u.path in SEARCHING for u in updates) / len(updates)
+        out[f"{g}_search_rate"] = sum(u.path in SEARCHING_PATHS for u in updates) / len(updates)
         out[f"{g}_mission_nn_accept_rate"] = nn_accept_rate(updates)
     return out

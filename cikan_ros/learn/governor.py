@@ -87,7 +87,6 @@ RETRY_BACKOFF = 8
 TAIL_MISSES = 2
 #: Paths answered by the conventional TSG's search (its own zero test included).
 SEARCHED = (PATH_SEARCH, PATH_STALL, PATH_TAIL)
-SEARCHING = SEARCHING_PATHS
 
 
 def stall_miss(side: Side, tau_prev: float, tau: float, reach: float) -> bool:
@@ -313,7 +312,7 @@ class LearnedGovernor:
             calls += 1
             if pred.verify(x_d, t, 0.0, cache or pred.cache(t)):
                 tau, path = 0.0, PATH_VERIFY_ZERO
-        self.trust.after_update(tau != tau_prev, path in SEARCHING)
+        self.trust.after_update(tau != tau_prev, path in SEARCHING_PATHS)
         if tau != tau_prev:
             self._progress = 1.0 - tau / tau_prev
         return make_record(started, tau, path, calls, k, tau_prev)
@@ -390,6 +389,7 @@ class LearnedGovernor:
             return tau, calls, None, PATH_SEARCH
         if self._search_holds > 0:   # learned.search_backoff: the last search found nothing
             self._search_holds -= 1
+            self._zero_failed = False   # nothing verified: the zero test as after any hold
             return tau_prev, 0, None, PATH_HOLD
         cache = pred.cache(t)
         ns = hold_first_candidates(to_ns(tau_prev), self._progress, pred.tol_ns, lc.hold_test,
