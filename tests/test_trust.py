@@ -548,12 +548,12 @@ def test_hold_first_candidates_property(tau_prev_ns: int, progress: float, hold:
 def test_the_hold_first_search_verifies_its_candidates_in_order(approach: str) -> None:
     """learned.search_rule "hold-first", a network never trusted (trust_credit 0), the paper's
     orbit for an hour: every active update with |τ_prev| above hold_first_above_s (0 here) is
-    the first candidate that passes [search-ladder], or, none passing, τ_prev [hold] with as
+    the first candidate that passes [search-ladder], or, none passing, τ_prev [search-hold] with as
     many calls as candidates, each judged here by Verify on the anchored chief, candidate by
     candidate; after such a hold the next 1, 2, 4, ... (at most search_backoff) updates hold
     without a call, and progress found resets the wait. All three kinds occur, and the mission
     flies without a violation."""
-    from cikan_ros.governor import PATH_HOLD, PATH_SEARCH_LADDER
+    from cikan_ros.governor import PATH_SEARCH_HOLD, PATH_SEARCH_LADDER
     from cikan_ros.learn.governor import hold_first_candidates
 
     cfg = load_config(None, **{"learned.trust_credit": 0, "learned.search_rule": "hold-first",
@@ -565,15 +565,15 @@ def test_the_hold_first_search_verifies_its_candidates_in_order(approach: str) -
     res = run_mission(gov, sample_start(pred, 3), 3)
     assert res.metrics()["violations"] == 0
     active = [u for u in res.updates if u.active]
-    assert {u.path for u in active} <= {PATH_HOLD, PATH_SEARCH_LADDER}
+    assert {u.path for u in active} <= {PATH_SEARCH_HOLD, PATH_SEARCH_LADDER}
     kinds = {(u.path, u.verify_calls > 0) for u in active}
-    assert kinds == {(PATH_HOLD, True), (PATH_HOLD, False), (PATH_SEARCH_LADDER, True)}, kinds
+    assert kinds == {(PATH_SEARCH_HOLD, True), (PATH_SEARCH_HOLD, False), (PATH_SEARCH_LADDER, True)}, kinds
     progress, wait, holds = math.nan, 0, 0
     records = {u.k: u for u in active}
     for s in res.update_states():
         u = records[s.k]
         if holds:
-            assert (u.path, u.tau_s, u.verify_calls) == (PATH_HOLD, u.tau_prev, 0)
+            assert (u.path, u.tau_s, u.verify_calls) == (PATH_SEARCH_HOLD, u.tau_prev, 0)
             holds -= 1
             continue
         anchored = gov.anchor(s.x_c, s.t)
@@ -582,7 +582,7 @@ def test_the_hold_first_search_verifies_its_candidates_in_order(approach: str) -
         passed = [anchored.verify(s.x_d, s.t, c / 1e9) for c in ns]
         first = next((j for j, ok in enumerate(passed) if ok), None)
         if first is None:
-            assert (u.path, u.tau_s, u.verify_calls) == (PATH_HOLD, u.tau_prev, len(ns))
+            assert (u.path, u.tau_s, u.verify_calls) == (PATH_SEARCH_HOLD, u.tau_prev, len(ns))
             wait = min(max(2 * wait, 1), lc.search_backoff)
             holds = wait
         else:
@@ -616,3 +616,15 @@ def test_the_stall_rule_searches_as_the_search_rule_says(predictor: Predictor) -
     first = next((j for j, c in enumerate(ns) if anchored.verify(s.x_d, s.t, c / 1e9)), None)
     expected = (s.tau_prev, len(ns)) if first is None else (ns[first] / 1e9, first + 1)
     assert (active[3].tau_s, active[3].verify_calls) == expected
+
+
+def test_decision_paths_are_distinct_from_the_graphs_no_decision_source() -> None:
+    """Every decision path of the built-in governors is its own text, and none is the source the
+    governor node publishes on a step with no decision (graph_spec.PATH_HOLD, "hold"): a bag
+    reader tells the two apart by the text alone (a searching update that holds is "search-hold")."""
+    import cikan_ros.governor as g
+    from cikan_ros.ros.graph_spec import PATH_HOLD
+
+    paths = [v for k, v in vars(g).items() if k.startswith("PATH_")]
+    assert len(paths) == len(set(paths)) and PATH_HOLD not in paths
+    assert set(g.SEARCHING_PATHS) <= set(paths)

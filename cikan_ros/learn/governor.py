@@ -64,7 +64,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..config import Config, Side, scenario_names, truth_names
-from ..governor import (PATH_AUDIT, PATH_BISECT, PATH_GALLOP, PATH_HOLD, PATH_INITIAL, PATH_KEEP, PATH_NN,
+from ..governor import (PATH_AUDIT, PATH_BISECT, PATH_GALLOP, PATH_SEARCH_HOLD, PATH_INITIAL, PATH_KEEP, PATH_NN,
                         PATH_NN_BISECT, PATH_PROBE, PATH_SEARCH, PATH_SEARCH_LADDER, PATH_STALL, PATH_TAIL,
                         PATH_VERIFY_ZERO, PATH_ZERO, SEARCHING_PATHS, UpdateRecord,
                         initial_update, make_record, start_clock, update_index)
@@ -307,7 +307,7 @@ class LearnedGovernor:
         else:
             tau, path, calls, cache = self._keep(pred, x_d, t, tau_prev, propose, k)
         if (path not in SEARCHED and tau != 0.0 and abs(tau) <= pred.config.tsg.zero_snap_s
-                and not (path in (PATH_GALLOP, PATH_SEARCH_LADDER, PATH_HOLD)
+                and not (path in (PATH_GALLOP, PATH_SEARCH_LADDER, PATH_SEARCH_HOLD)
                          and self._zero_failed)):  # this update verified 0 itself, and it failed
             calls += 1
             if pred.verify(x_d, t, 0.0, cache or pred.cache(t)):
@@ -361,7 +361,7 @@ class LearnedGovernor:
     def _search(self, pred: Predictor, x_d: ArrayLike, t: float, tau_prev: float,
                 propose: Callable[[], float]) -> tuple[float, str, int, ChiefCache | None]:
         """Trust, c = 0 (searching): the rule's search (:meth:`_searched`: π* as the conventional
-        TSG finds it [search], or the hold-first search [hold, search-ladder]); the proposal τ_c
+        TSG finds it [search], or the hold-first search [search-hold, search-ladder]); the proposal τ_c
         is judged against its answer (:meth:`would_pay`, a shadow judgement), the network
         consulted only when the answer gives evidence (:meth:`judgeable`): in GEO, where the
         rule searches on most updates, the forward passes skipped were 10 % of the active
@@ -377,7 +377,7 @@ class LearnedGovernor:
         path). ``learned.search_rule`` "conventional", or |τ_prev| <= ``hold_first_above_s``:
         the conventional TSG's update [search]. "hold-first": the candidates of
         :func:`hold_first_candidates` verified in order, closest to 0 first, one compiled call;
-        none passes: τ_prev [hold]; one passes: that shift, or with ``search_budget`` > 0 the
+        none passes: τ_prev [search-hold]; one passes: that shift, or with ``search_budget`` > 0 the
         bisection between it and the candidate before it with at most that many calls
         [search-ladder]. Safe: every answer passed Verify or is τ_prev. Why
         (docs/learned_update_rule.md, "A search that holds first"): in GEO's first phase π* holds
@@ -390,7 +390,7 @@ class LearnedGovernor:
         if self._search_holds > 0:   # learned.search_backoff: the last search found nothing
             self._search_holds -= 1
             self._zero_failed = False   # nothing verified: the zero test as after any hold
-            return tau_prev, 0, None, PATH_HOLD
+            return tau_prev, 0, None, PATH_SEARCH_HOLD
         cache = pred.cache(t)
         ns = hold_first_candidates(to_ns(tau_prev), self._progress, pred.tol_ns, lc.hold_test,
                                    lc.search_depth, lc.search_ladder)
@@ -400,7 +400,7 @@ class LearnedGovernor:
             if lc.search_backoff:
                 self._search_wait = min(max(2 * self._search_wait, 1), lc.search_backoff)
                 self._search_holds = self._search_wait
-            return tau_prev, calls, cache, PATH_HOLD
+            return tau_prev, calls, cache, PATH_SEARCH_HOLD
         self._search_wait = 0
         if index > 0 and lc.search_budget:
             tau, c = pred.bisect(x_d, t, tau, ns_to_seconds(int(ns[index - 1])), cache, lc.search_budget)
@@ -611,7 +611,7 @@ def nn_accept_rate(updates: Iterable[UpdateRecord]) -> float | None:
     per-run metric, Table 2, the campaign summaries and the scenario index. None without an
     active update.
 
-    An update where the network was not trusted (path "search", "stall", "tail", "hold" or
+    An update where the network was not trusted (path "search", "stall", "tail", "search-hold" or
     "search-ladder"), held tau_{k-1}
     ("keep") or searched after its candidates failed counts as not accepted: what the figure
     says is how often the network, not the search, decided. A proposal that passed Verify and
