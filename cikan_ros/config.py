@@ -479,8 +479,9 @@ LEARNED_ALGORITHMS = ("keep", "paper")
 #: How the keep rule answers robust Verify's tail (|tau_prev| <= learned.robust_tail_s): the
 #: conventional TSG's search, or a search around the last progress (docs/learned_update_rule.md).
 TAIL_RULES = ("gallop", "search")
-#: How the keep rule answers an update while its network is not trusted: the conventional TSG's
-#: search, or a hold test then a search around the last progress (docs/learned_update_rule.md).
+#: How the keep rule searches while its network is not trusted (and for the stall rule): the
+#: conventional TSG's search, or "hold-first": 0, coarse midpoints, the last progress and a hold
+#: test verified in order, the first that passes answered (docs/learned_update_rule.md).
 SEARCH_RULES = ("conventional", "hold-first")
 
 

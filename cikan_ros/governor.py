@@ -34,8 +34,8 @@ PATH_AUDIT = "audit"            # keep rule: the scheduled audit found the answe
 PATH_STALL = "stall"            # keep rule: tau held for learned.stall_updates updates; the conventional TSG's pi*
 PATH_TAIL = "tail"              # keep rule, robust Verify, |tau_prev| <= learned.robust_tail_s: the conventional TSG's pi*
 PATH_GALLOP = "gallop"          # keep rule, robust Verify's tail: a search around the last update's progress (learned.tail_rule)
-PATH_SEARCH_HOLD = "search-hold"  # keep rule, network not trusted (learned.search_rule "hold-first"): the hold test failed, tau_prev held
-PATH_SEARCH_LADDER = "search-ladder"  # keep rule, network not trusted (hold-first): the first of its candidates that passed
+PATH_SEARCH_HOLD = "search-hold"      # keep rule, not trusted, learned.search_rule "hold-first": none passed, tau_prev held
+PATH_SEARCH_LADDER = "search-ladder"  # keep rule, not trusted, "hold-first": the first of its candidates that passed
 #: Paths of a learned update the network did not decide because it was not trusted or a search was
 #: due (the "searching" share of a learned governor's updates).
 SEARCHING_PATHS = (PATH_SEARCH, PATH_STALL, PATH_TAIL, PATH_SEARCH_HOLD, PATH_SEARCH_LADDER)
