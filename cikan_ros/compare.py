@@ -41,8 +41,8 @@ SHIFT_BAND_KEYS = ("updates", "cpu_s", "verify_calls", "searched", "nn")
 
 def shift_bands(active: Iterable[UpdateRecord]) -> list[dict[str, float]]:
     """Per band of :data:`SHIFT_BANDS` (|τ_prev| in (low, high]): the active updates, their CPU
-    time (s), Verify calls, and how many searched (:data:`cikan_ros.governor.SEARCHING_PATHS`:
-    "search", "stall", "tail", "search-hold", "search-ladder") or answered with the network's proposal ("nn")."""
+    time (s), Verify calls, and how many searched (:data:`cikan_ros.governor.SEARCHING_PATHS`)
+    or answered with the network's proposal ("nn")."""
     out = [{k: 0.0 if k == "cpu_s" else 0 for k in SHIFT_BAND_KEYS} for _ in SHIFT_BANDS]
     for r in active:
         m = abs(r.tau_prev)

@@ -195,9 +195,9 @@ def mission_figures(conventional: Any, governors: list[Any], states: BenchStates
     ``_mission_cpu_speedup`` (all starts' CPU pooled); ``_flown_update_speedup`` (the ratio of the
     pooled mean CPU per active update: it flatters a governor that lags pi* and flies more of the
     cheap updates near tau = 0, so it is second), ``_mission_verify_calls_mean`` (per active
-    update), ``_search_rate`` (share of its active updates answered by searching: paths
-    "search", "stall", "tail", "search-hold" and "search-ladder") and ``_mission_nn_accept_rate`` (share answered with the
-    network's proposal, :func:`cikan_ros.learn.governor.nn_accept_rate`, pooled)."""
+    update), ``_search_rate`` (share of its active updates answered by searching:
+    :data:`cikan_ros.governor.SEARCHING_PATHS`) and ``_mission_nn_accept_rate`` (share answered
+    with the network's proposal, :func:`cikan_ros.learn.governor.nn_accept_rate`, pooled)."""
     from ..mission import run_mission
     from ..governor import SEARCHING_PATHS
     from .governor import nn_accept_rate

@@ -64,8 +64,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..config import Config, Side, scenario_names, truth_names
-from ..governor import (PATH_AUDIT, PATH_BISECT, PATH_GALLOP, PATH_SEARCH_HOLD, PATH_INITIAL, PATH_KEEP, PATH_NN,
-                        PATH_NN_BISECT, PATH_PROBE, PATH_SEARCH, PATH_SEARCH_LADDER, PATH_STALL, PATH_TAIL,
+from ..governor import (PATH_AUDIT, PATH_BISECT, PATH_GALLOP, PATH_INITIAL, PATH_KEEP, PATH_NN, PATH_NN_BISECT,
+                        PATH_PROBE, PATH_SEARCH, PATH_SEARCH_HOLD, PATH_SEARCH_LADDER, PATH_STALL, PATH_TAIL,
                         PATH_VERIFY_ZERO, PATH_ZERO, SEARCHING_PATHS, UpdateRecord,
                         initial_update, make_record, start_clock, update_index)
 from ..tsg import ChiefAnchor, ChiefCache, Predictor, quantise_shift
@@ -361,8 +361,8 @@ class LearnedGovernor:
     def _search(self, pred: Predictor, x_d: ArrayLike, t: float, tau_prev: float,
                 propose: Callable[[], float]) -> tuple[float, str, int, ChiefCache | None]:
         """Trust, c = 0 (searching): the rule's search (:meth:`_searched`: π* as the conventional
-        TSG finds it [search], or the hold-first search [search-hold, search-ladder]); the proposal τ_c
-        is judged against its answer (:meth:`would_pay`, a shadow judgement), the network
+        TSG finds it [search], or the hold-first search [search-hold, search-ladder]); the
+        proposal τ_c is judged against its answer (:meth:`would_pay`, a shadow judgement), the network
         consulted only when the answer gives evidence (:meth:`judgeable`): in GEO, where the
         rule searches on most updates, the forward passes skipped were 10 % of the active
         updates' CPU (6 starts, same decisions)."""
@@ -377,8 +377,8 @@ class LearnedGovernor:
         path). ``learned.search_rule`` "conventional", or |τ_prev| <= ``hold_first_above_s``:
         the conventional TSG's update [search]. "hold-first": the candidates of
         :func:`hold_first_candidates` verified in order, closest to 0 first, one compiled call;
-        none passes: τ_prev [search-hold]; one passes: that shift, or with ``search_budget`` > 0 the
-        bisection between it and the candidate before it with at most that many calls
+        none passes: τ_prev [search-hold]; one passes: that shift, or with ``search_budget`` > 0
+        the bisection between it and the candidate before it with at most that many calls
         [search-ladder]. Safe: every answer passed Verify or is τ_prev. Why
         (docs/learned_update_rule.md, "A search that holds first"): in GEO's first phase π* holds
         on two thirds of the updates, where the bisection spends ~19 failing calls, and a shift
@@ -392,9 +392,10 @@ class LearnedGovernor:
             self._zero_failed = False   # nothing verified: the zero test as after any hold
             return tau_prev, 0, None, PATH_SEARCH_HOLD
         cache = pred.cache(t)
-        ns = hold_first_candidates(to_ns(tau_prev), self._progress, pred.tol_ns, lc.hold_test,
-                                   lc.search_depth, lc.search_ladder)
-        tau, index, calls = pred.first_feasible_ns(x_d, t, ns, to_ns(tau_prev), 0, cache)
+        prev_ns = to_ns(tau_prev)
+        ns = hold_first_candidates(prev_ns, self._progress, pred.tol_ns, lc.hold_test, lc.search_depth,
+                                   lc.search_ladder)
+        tau, index, calls = pred.first_feasible_ns(x_d, t, ns, prev_ns, 0, cache)
         self._zero_failed = index != 0   # candidate 0 came first: failed, or never reached
         if index < 0:
             if lc.search_backoff:
@@ -612,8 +613,8 @@ def nn_accept_rate(updates: Iterable[UpdateRecord]) -> float | None:
     active update.
 
     An update where the network was not trusted (path "search", "stall", "tail", "search-hold" or
-    "search-ladder"), held tau_{k-1}
-    ("keep") or searched after its candidates failed counts as not accepted: what the figure
+    "search-ladder"), held tau_{k-1} ("keep") or searched after its candidates failed counts as
+    not accepted: what the figure
     says is how often the network, not the search, decided. A proposal that passed Verify and
     was then snapped to 0 by the zero test counts as not accepted (its path is "verify-zero");
     this happens at most once per mission."""

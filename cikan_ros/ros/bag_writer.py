@@ -308,8 +308,8 @@ class BagWriter:
         self.closed = False
         #: Each topic's metadata.yaml entry but its count, rendered once (:meth:`metadata_text`).
         self.topic_yaml: dict[str, str] = {}
-        #: metadata.yaml's custom_data and ros_distro entries, rendered, and the custom data they render.
-        self._custom_yaml: tuple[dict[str, str] | None, str] = (None, "")
+        #: metadata.yaml's custom_data and ros_distro entries, rendered, and what they render.
+        self._custom_yaml: tuple[tuple[dict[str, str], str] | None, str] = (None, "")
         self.write_metadata()
 
     def add_topic(self, topic: str, type_name: str, qos_profiles: list[dict[str, Any]]) -> None:
@@ -489,9 +489,9 @@ class BagWriter:
             topics = "  topics_with_message_count: []\n"
         tail = self._metadata_tail(start, end, total)
         custom, distro = tail.pop("custom_data"), tail.pop("ros_distro")   # the tail's last two keys
-        if self._custom_yaml[0] != custom:   # rendered again only when the custom data change
-            self._custom_yaml = (dict(custom), yaml.dump({"custom_data": custom, "ros_distro": distro},
-                                                         Dumper=YAML_DUMPER, sort_keys=False))
+        if self._custom_yaml[0] != (custom, distro):   # rendered again only when they change
+            self._custom_yaml = ((dict(custom), distro), yaml.dump({"custom_data": custom, "ros_distro": distro},
+                                                                   Dumper=YAML_DUMPER, sort_keys=False))
         tail_text = yaml.dump(tail, Dumper=YAML_DUMPER, sort_keys=False) + self._custom_yaml[1]
         return head + topics + _indented(tail_text)
 
