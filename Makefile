@@ -204,6 +204,9 @@ SCENARIO_RUNS      = runs/scenarios/$(SCENARIO)-$(APPROACH)$(ROBUST_SUFFIX)
 SCENARIO_ARGS      = --scenario $(SCENARIO) --set mission.approach=$(APPROACH) \
                      $(if $(ROBUST),--truth $(TRUTH) --robust)
 SCENARIO_TRAIN    ?= --epochs 30 --patience 6 --max-minutes 20 --threads 1 --quiet
+# Robust Verify's networks learn pi*'s step from tau_{k-1}, ln(|tau*| / |tau_{k-1}|), not ln|tau*|
+# (docs/learned_update_rule.md, "A network of the step"); ROBUST_NET= trains them as before.
+ROBUST_NET        ?= --features vnb-prev --target log-ratio
 
 $(SCENARIO_RUNS)/labels.parquet: | $(STAMP)
 	$(BIN)/cikan dataset $(SCENARIO_ARGS) --labels $(SCENARIO_LABELS) --out $@ --seed 2 --workers 2 --chunk 8
@@ -213,7 +216,7 @@ scenario-data: $(SCENARIO_RUNS)/labels.parquet
 scenario-models: $(SCENARIO_RUNS)/labels.parquet
 	for f in $(SCENARIO_FAMILIES); do \
 	  $(BIN)/cikan train $(SCENARIO_ARGS) --model $$f --like models/$$f --data $(SCENARIO_RUNS)/labels.parquet \
-	    --checkpoint-dir $(SCENARIO_RUNS)/checkpoints/$$f $(SCENARIO_TRAIN) || exit 1; \
+	    --checkpoint-dir $(SCENARIO_RUNS)/checkpoints/$$f $(if $(ROBUST),$(ROBUST_NET)) $(SCENARIO_TRAIN) || exit 1; \
 	done
 
 # The models of robust Verify (realistic truth) for every scenario and side: labels and

@@ -145,6 +145,61 @@ def test_tau_prev_network_trains_and_flies(data_path: Path, tmp_path: Path, pred
     assert rec.tau_s == row["tau_prev_s"] or predictor.verify(x_d, float(row["t_s"]), rec.tau_s)
 
 
+def test_log_ratio_network_learns_the_step_and_flies(data_path: Path, tmp_path: Path, predictor) -> None:
+    """Target "log-ratio": the labels are y = ln(|tau*| / |tau_{k-1}|) (golden: from the
+    dataset's columns), y + offset = ln|tau*|, the card names the target, and the governor's
+    ln|tau| is ln|tau_{k-1}| plus the torch network's output at the same state."""
+    from cikan_ros.learn.dataset import read_parquet
+    from cikan_ros.learn.features import features
+    from cikan_ros.learn.governor import LearnedGovernor
+
+    data = load_data(data_path, "vnb-prev", "log-ratio")
+    df, _ = read_parquet(data_path)
+    rows = df[df["split"] == "train"]
+    tau, prev = rows["tau_star_s"].to_numpy(), rows["tau_prev_s"].to_numpy()
+    s = data.splits["train"]
+    np.testing.assert_allclose(s.y, np.log(tau / prev), rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(s.offset, np.log(-prev))
+    np.testing.assert_allclose(s.y + s.offset, np.log(-tau), rtol=0, atol=1e-12)
+    assert (s.y <= 1e-12).all()   # pi* lies between tau_{k-1} and 0: no step away from 0
+
+    arch = Arch("relu", 16, 2, features="vnb-prev", target="log-ratio")
+    res = train(arch, data, TrainConfig(epochs=2, batch=64), tmp_path / "m", None, progress=False)
+    m = load_model(tmp_path / "m")
+    assert m.card["architecture"]["target"] == "log-ratio" and m.arch.relative
+    assert "ln|tau_{k-1}|" in m.card["losses"]["definition"]
+    gov = LearnedGovernor.from_model(m, predictor)
+    net = res["net"]
+    for _, row in rows.head(5).iterrows():
+        x_d = row[[f"xd{i}" for i in range(6)]].to_numpy(dtype=float)
+        x_c = row[[f"xc{i}" for i in range(6)]].to_numpy(dtype=float)
+        z = torch.from_numpy(net.normalise(features(x_d, x_c, "vnb-prev", row["tau_prev_s"]))[None, :]).float()
+        with torch.no_grad():
+            expected = float(np.log(-row["tau_prev_s"])) + float(net(z)[0])
+        assert gov.log_shift(x_d, x_c, float(row["tau_prev_s"])) == pytest.approx(expected, abs=1e-5)
+    # tau_{k-1} = 0 gives no usable proposal (ln 0 = -inf), not an exception
+    assert np.isnan(gov.proposal(x_d, x_c, 0.0))
+
+
+def test_log_ratio_needs_tau_prev_in_the_features(data_path: Path, tmp_path: Path,
+                                                  capsys: pytest.CaptureFixture) -> None:
+    from cikan_ros.cli import main
+    from cikan_ros.learn.errors import ModelFileError
+
+    with pytest.raises(ModelFileError, match="log-ratio.*vnb-prev"):
+        Arch("relu", 16, 2, target="log-ratio")
+    with pytest.raises(ModelFileError, match="log-ratio.*vnb-prev"):
+        load_data(data_path, "vnb", "log-ratio")
+    with pytest.raises(ModelFileError, match="target must be one of"):
+        Arch("relu", 16, 2, features="vnb-prev", target="ln-tau")
+    assert main(["train", "--model", "relu", "--data", str(data_path), "--target", "log-ratio",
+                 "--epochs", "1", "--out", str(tmp_path / "m"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and err.count("\n") == 1
+    assert err.startswith("cikan train: error:") and "log-ratio" in err and "vnb-prev" in err
+    assert not (tmp_path / "m").exists()
+
+
 def test_models_page_tables_come_from_cards_and_data(data_path: Path, tmp_path: Path) -> None:
     """`cikan models`: one row per model directory from its card; the breakdown's groups hold
     the stated shares of the split and their losses are the paper's loss on those labels."""

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from ..learn.arch import TARGETS
 from ..learn.features import FEATURE_SETS
 from ..strict_json import dumps
 from . import add_config_args, config_from_args, seed_arg
@@ -45,6 +46,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--h", type=float, default=None, help="basis width h (GRBF, RSWAF; 0 = spacing)")
     g.add_argument("--no-hidden-norm", action="store_true", help="no LayerNorm on hidden KAN inputs")
     g.add_argument("--features", default="vnb", choices=FEATURE_SETS, help="feature set")
+    g.add_argument("--target", default="log-shift", choices=TARGETS,
+                   help="what the network learns: ln|tau*| (log-shift, the paper's) or "
+                        "ln(|tau*| / |tau_{k-1}|) (log-ratio: pi*'s step from the last shift; needs "
+                        "--features vnb-prev; docs/learned_update_rule.md, \"A network of the step\")")
     t = p.add_argument_group("training")
     t.add_argument("--epochs", type=int, default=40,
                    help="epochs N of the schedule (0: write the untrained network, its seeded "
@@ -130,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
                                  ("grid_range", args.grid_range), ("h", args.h)) if v is not None}
     if args.no_hidden_norm:
         changes["hidden_norm"] = False
-    arch = replace(arch, **changes)
+    arch = replace(arch, **changes, target=args.target)
     for k in ("lr", "weight_decay", "batch", "theta_c"):
         if getattr(args, k) is not None:
             hp[k] = getattr(args, k)
@@ -138,7 +143,7 @@ def run(args: argparse.Namespace) -> int:
                       lr_inf=args.lr_inf if args.lr_inf is not None else hp["lr"] / 100,
                       patience=args.patience, seed=args.seed, max_minutes=args.max_minutes,
                       threads=args.threads, max_train=args.max_train, **hp)
-    data = load_data(args.data, args.features)
+    data = load_data(args.data, args.features, args.target)
     if args.out is None:
         from ..learn.modelfile import check_dataset_labels, check_dataset_scenario, scenario_model_dir
 

@@ -19,8 +19,14 @@ Edge functions (x a scalar input of layer l, one function per edge (j, i)):
 
 Optional ``hidden_norm``: a LayerNorm on the input of every KAN layer but the first (SPEC §7
 pitfalls: keeps hidden activations inside the grid; the first layer sees z-scored features and
-must keep their per-sample offsets). The network's output is de-normalised:
-ln|τ| = target_mean + target_std · net(z).
+must keep their per-sample offsets). The network's output is de-normalised into its target
+y = target_mean + target_std · net(z), and ``target`` says what y is:
+
+- ``"log-shift"`` (the paper's): y = ln|τ| (s);
+- ``"log-ratio"``: y = ln(|τ| / |τ_{k-1}|) <= 0, so ln|τ| = ln|τ_{k-1}| + y. The network learns
+  π*'s step relative to the shift it starts from, not the shift itself: a relative error of the
+  step, not of |τ| (needs a feature set with τ_{k-1}, ``vnb-prev``; docs/learned_update_rule.md,
+  "A network of the step").
 """
 
 from __future__ import annotations
@@ -34,10 +40,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .errors import ModelFileError
-from .features import FEATURE_SETS, features_into, n_features
+from .features import FEATURE_SETS, features_into, n_features, uses_tau_prev
 
 FAMILIES = ("cikan", "grbf", "rswaf", "relu", "gelu")
 KAN_FAMILIES = ("cikan", "grbf", "rswaf")
+#: What a network's de-normalised output is (module docstring): ln|τ| or ln(|τ| / |τ_{k-1}|).
+TARGETS = ("log-shift", "log-ratio")
 #: Buffers every model file carries (float64): feature and target normalisation.
 NORM_TENSORS = ("feature_mean", "feature_std", "target_mean", "target_std")
 
@@ -65,6 +73,7 @@ class Arch:
     hidden_norm: bool = True
     n_in: int = 0           # 0: the feature set's input count
     features: str = "vnb"
+    target: str = "log-shift"
 
     def __post_init__(self) -> None:
         def bad(what: str) -> None:
@@ -90,6 +99,21 @@ class Arch:
             object.__setattr__(self, "n_in", n_features(self.features))
         if self.n_in != n_features(self.features):
             bad(f"n_in must be {n_features(self.features)} for features {self.features!r}")
+        if self.target not in TARGETS:
+            bad(f"target must be one of {TARGETS}")
+        if self.target == "log-ratio" and not uses_tau_prev(self.features):
+            bad("target 'log-ratio' needs a feature set with tau_prev (vnb-prev)")
+
+    @property
+    def relative(self) -> bool:
+        """Is the target ln(|τ| / |τ_{k-1}|) (``log-ratio``)?"""
+        return self.target == "log-ratio"
+
+    def log_shift_offset(self, feats: NDArray) -> NDArray:
+        """What to add to the target to get ln|τ| (s), for raw features (..., n_in) -> (...):
+        ln|τ_{k-1}| (the last feature of ``vnb-prev``) for ``log-ratio``, else 0."""
+        feats = np.asarray(feats, dtype=np.float64)
+        return feats[..., -1].copy() if self.relative else np.zeros(feats.shape[:-1])
 
     # -- shape -------------------------------------------------------------------------------
     @property
@@ -536,16 +560,20 @@ def _aligned_zeros(n: int, dtype: Any, align: int = 64) -> NDArray:
 
 @nb.njit(cache=True)
 def log_shift_kernel(x_d: NDArray, x_c: NDArray, code: int, tau_prev: float, mean: NDArray,
-                     inv_std: NDArray, target_mean: float, target_std: float, z: NDArray,
-                     net_args: tuple) -> float:
+                     inv_std: NDArray, target_mean: float, target_std: float, relative: bool,
+                     z: NDArray, net_args: tuple) -> float:
     """NN(features(x_d, x_c, τ_{k-1})): ln|τ| (s) in one compiled call (features, z-score into
-    the (1, n_in) buffer z, network, target scale), so an update pays one dispatch. It lives
-    here, beside network_forward, because numba rebuilds a cached function only when its own
-    file changes: compiled elsewhere it could keep an old forward."""
+    the (1, n_in) buffer z, network, target scale, plus ln|τ_{k-1}| for a ``relative``
+    (log-ratio) network), so an update pays one dispatch. It lives here, beside
+    network_forward, because numba rebuilds a cached function only when its own file changes:
+    compiled elsewhere it could keep an old forward."""
     features_into(x_d, x_c, code, tau_prev, z[0])
     for i in range(z.shape[1]):
         z[0, i] = (z[0, i] - mean[i]) * inv_std[i]
-    return target_mean + target_std * network_forward(z, *net_args)[0]
+    y = target_mean + target_std * network_forward(z, *net_args)[0]
+    if relative:   # -inf at tau_prev = 0: an unusable proposal, as the feature's
+        y += math.log(abs(tau_prev)) if tau_prev != 0.0 else -math.inf
+    return y
 
 
 class NumpyNet:
@@ -559,6 +587,8 @@ class NumpyNet:
         self.feature_inv_std = 1.0 / t["feature_std"]
         self.target_mean = float(t["target_mean"][0])
         self.target_std = float(t["target_std"][0])
+        #: The target is ln(|τ| / |τ_{k-1}|) (Arch.target "log-ratio"), not ln|τ|.
+        self.relative = arch.relative
         self._n_in = arch.n_in
         kind = FAMILIES.index(arch.family)
         # The torch modules hold grids as float32 buffers: use the same values here.
@@ -607,16 +637,23 @@ class NumpyNet:
         """z-score raw features (..., n_in) with the training statistics."""
         return (feats - self.feature_mean) * self.feature_inv_std
 
+    def log_shift(self, feats: NDArray) -> NDArray:
+        """ln|τ| (s) predictions for raw features (B, n_in) -> (B,): the target
+        (:meth:`forward` of the z-scored features) plus ln|τ_{k-1}| for a log-ratio network."""
+        feats = np.asarray(feats, dtype=np.float64)
+        return self.forward(self.normalise(feats)) + self.arch.log_shift_offset(feats)
+
     def forward(self, z: NDArray) -> NDArray:
-        """ln|τ| predictions for z-scored features z (B, n_in) -> (B,)."""
+        """Target predictions (ln|τ|, or ln(|τ| / |τ_{k-1}|) for a log-ratio network) for
+        z-scored features z (B, n_in) -> (B,)."""
         z = np.ascontiguousarray(z, dtype=np.float64)
         if z.ndim != 2 or z.shape[1] != self._n_in:
             raise ValueError(f"features must have shape (B, {self._n_in}), got {z.shape}")
         return self.target_mean + self.target_std * network_forward(z, *self._args)
 
     def forward_one(self, z: NDArray) -> float:
-        """ln|τ| for one z-scored feature vector z (n_in,): the governor's path, the batch kernel
-        on a (1, n_in) view."""
+        """The target (as :meth:`forward`) for one z-scored feature vector z (n_in,): the batch
+        kernel on a (1, n_in) view."""
         z = np.ascontiguousarray(z, dtype=np.float64)
         if z.shape != (self._n_in,):
             raise ValueError(f"features must have shape ({self._n_in},), got {z.shape}")

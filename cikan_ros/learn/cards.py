@@ -66,8 +66,9 @@ def card_table(models: list[LoadedModel | tuple[str, str]]) -> str:
         size = f"({a.width}, {a.layers}, {a.grid})" if a.is_kan else f"({a.width}, {a.layers}, -)"
         labels = c.get("dataset", {}).get("split_labels", {}).get("train", "-")
         sc = model_scenario(c)
+        inputs = f"{a.features}, {a.target}" if a.relative else a.features
         rows.append(
-            f"| {_name(m.path)} | {sc['name']}, {sc['approach']}, {_verify(c.get('config') or {})} | {a.features} | {size} | {a.n_params():,} | {a.complexity():,} "
+            f"| {_name(m.path)} | {sc['name']}, {sc['approach']}, {_verify(c.get('config') or {})} | {inputs} | {size} | {a.n_params():,} | {a.complexity():,} "
             f"| {L['theta_c']:.2f} | {L['train']['loss']:.3e} | {L['val']['loss']:.3e} "
             f"| {L['test']['loss']:.3e} | {L['val']['loss_theta1']:.3e} | {PAPER_VAL[a.family]:.3e} "
             f"| {L['test']['rmse_tau_s']:.3f} | {labels:,} | {tr['epochs_run']}/{tr['epochs']} "
@@ -115,7 +116,7 @@ def loss_breakdown(models: list[LoadedModel | tuple[str, str]], data_path: str |
     x_c = part[list(XC_COLS)].to_numpy()
     for m in ok:
         net = NumpyNet(m.arch, m.tensors)
-        preds[m.path.name] = net.forward(net.normalise(features(x_d, x_c, m.arch.features, prev)))
+        preds[m.path.name] = net.log_shift(features(x_d, x_c, m.arch.features, prev))
     for name, mask in groups:
         cells = [f"{cinn_log_loss_np(preds[m.path.name][mask], y[mask]):.3e}" if mask.any() else "-"
                  for m in ok]

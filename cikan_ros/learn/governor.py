@@ -270,7 +270,7 @@ class LearnedGovernor:
         net = self.net
         return log_shift_kernel(np.asarray(x_d, dtype=np.float64), np.asarray(x_c, dtype=np.float64),
                                 self._code, float(tau_prev), net.feature_mean, net.feature_inv_std,
-                                net.target_mean, net.target_std, self._z, net.kernel_args)
+                                net.target_mean, net.target_std, net.relative, self._z, net.kernel_args)
 
     def proposal(self, x_d: ArrayLike, x_c: ArrayLike, tau_prev: float = math.nan) -> float:
         """τ_c = side · exp(NN) on the nanosecond grid (side -1 behind the chief, +1 ahead); NaN

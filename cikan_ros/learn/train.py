@@ -31,12 +31,19 @@ from .schedule import ExpHyperbolicLR
 
 @dataclass
 class SplitData:
-    """Raw float64 features (n, I), targets y = ln|τ*| (n,), τ* (n,) and mission ids of a split."""
+    """Raw float64 features (n, I), targets y (n,), τ* (n,), mission ids and the offset (n,)
+    with ln|τ*| = y + offset: y = ln|τ*| and offset 0 for a ``log-shift`` network, y =
+    ln(|τ*| / |τ_{k-1}|) and offset ln|τ_{k-1}| for a ``log-ratio`` one (``cikan_ros.learn.arch``)."""
 
     feats: NDArray
     y: NDArray
     tau: NDArray
     mission: NDArray
+    offset: NDArray
+
+    def head(self, n: int) -> "SplitData":
+        """The first n labels."""
+        return SplitData(self.feats[:n], self.y[:n], self.tau[:n], self.mission[:n], self.offset[:n])
 
 
 @dataclass
@@ -45,12 +52,17 @@ class Data:
     meta: dict[str, Any]
     path: str
     features: str = "vnb"
+    target: str = "log-shift"
 
 
-def load_data(path: str | Path | Sequence[str | Path], kind: str = "vnb") -> Data:
+def load_data(path: str | Path | Sequence[str | Path], kind: str = "vnb", target: str = "log-shift") -> Data:
     """Read a dataset, or several concatenated (each label keeps its own file's split), and
-    compute features (float64) and targets per split. Several files: e.g. conventional labels
-    plus on-policy labels of a learned governor (``cikan dataset --governor``)."""
+    compute features (float64) and targets (``target``, :data:`~cikan_ros.learn.arch.TARGETS`)
+    per split. Several files: e.g. conventional labels plus on-policy labels of a learned
+    governor (``cikan dataset --governor``)."""
+    from .arch import Arch
+
+    arch = Arch("relu", 1, 1, features=kind, target=target)   # checks the pair (ModelFileError)
     import pandas as pd
 
     paths = [path] if isinstance(path, (str, Path)) else list(path)
@@ -79,11 +91,12 @@ def load_data(path: str | Path | Sequence[str | Path], kind: str = "vnb") -> Dat
         feats = features(part[list(XD_COLS)].to_numpy(), part[list(XC_COLS)].to_numpy(), kind,
                          part["tau_prev_s"].to_numpy(dtype=np.float64))
         tau = part["tau_star_s"].to_numpy(dtype=np.float64)
-        out[s] = SplitData(feats, np.log(np.abs(tau)), tau, part["mission"].to_numpy())
+        offset = arch.log_shift_offset(feats)
+        out[s] = SplitData(feats, np.log(np.abs(tau)) - offset, tau, part["mission"].to_numpy(), offset)
     if len(out["train"].y) == 0 or len(out["val"].y) == 0:
         raise DatasetError(f"dataset {path} needs non-empty train and val splits "
                            f"(has {[len(out[s].y) for s in SPLITS]})")
-    return Data(out, meta, str(path), kind)
+    return Data(out, meta, str(path), kind, target)
 
 
 @dataclass
@@ -120,7 +133,7 @@ def _tensor(a: NDArray) -> torch.Tensor:
 
 @torch.inference_mode()
 def predict(net: TimeShiftNet, z: torch.Tensor, batch: int = 8192) -> NDArray:
-    """ln|τ| predictions (float64) for z-scored features z (n, I)."""
+    """Target predictions (float64; ln|τ| for a log-shift network) for z-scored features z (n, I)."""
     net.eval()
     out = [net(z[i:i + batch]).double() for i in range(0, len(z), batch)]
     return torch.cat(out).numpy() if out else np.empty(0)
@@ -132,7 +145,7 @@ def split_report(net: TimeShiftNet, z: torch.Tensor, s: SplitData, theta_c: floa
         return {}
     p = predict(net, z)
     err = s.y - p
-    tau_hat = np.sign(s.tau) * np.exp(p)
+    tau_hat = np.sign(s.tau) * np.exp(p + s.offset)
     return {
         "loss": cinn_log_loss_np(p, s.y, theta_c),
         "loss_theta1": cinn_log_loss_np(p, s.y, 1.0),
@@ -200,6 +213,8 @@ def train(arch: Arch, data: Data, cfg: TrainConfig, out: str | Path | None,
     cfg.check()
     if arch.features != data.features:
         raise DatasetError(f"architecture uses feature set {arch.features!r}, data has {data.features!r}")
+    if arch.target != data.target:
+        raise DatasetError(f"architecture learns target {arch.target!r}, data has {data.target!r}")
     torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
     tr = data.splits["train"]
@@ -269,13 +284,15 @@ def train(arch: Arch, data: Data, cfg: TrainConfig, out: str | Path | None,
                 stop_reason = "wall budget"
                 break
     net.load_state_dict(best)
-    losses = {"definition": "mean((y - y_hat)^2) + theta_c * mean(relu(y - y_hat)^2), y = ln|tau*| [s]",
+    # y - y_hat is the same for both targets (their offset cancels): the losses compare.
+    losses = {"definition": "mean((y - y_hat)^2) + theta_c * mean(relu(y - y_hat)^2), y = ln|tau*| [s]"
+                            + (" - ln|tau_{k-1}|" if arch.relative else ""),
               "theta_c": cfg.theta_c}
     for s in SPLITS:
         zs = z[s][:n_train] if s == "train" else z[s]
         sd = data.splits[s]
         if s == "train":
-            sd = SplitData(sd.feats[:n_train], sd.y[:n_train], sd.tau[:n_train], sd.mission[:n_train])
+            sd = sd.head(n_train)
         losses[s] = split_report(net, zs, sd, cfg.theta_c)
     training = {
         "optimizer": "AdamW", "schedule": "ExpHyperbolicLR (per epoch)",
