@@ -478,7 +478,7 @@ def handoff_control_config(cfg: "Config") -> ControlConfig:
 LEARNED_ALGORITHMS = ("keep", "paper")
 #: How the keep rule answers robust Verify's tail (|tau_prev| <= learned.robust_tail_s): the
 #: conventional TSG's search, or a search around the last progress (docs/learned_update_rule.md).
-TAIL_RULES = ("gallop", "search")
+TAIL_RULES = ("gallop", "search", "network")
 #: How the keep rule searches while its network is not trusted (and for the stall rule): the
 #: conventional TSG's search, or "hold-first": 0, coarse midpoints, the last progress and a hold
 #: test verified in order, the first that passes answered (docs/learned_update_rule.md).
@@ -504,7 +504,8 @@ class LearnedConfig:
     stall_updates: int = 10
     stall_judge: str = "progress"
     robust_tail_s: float = 0.1
-    tail_rule: str = "gallop"
+    tail_rule: str = "network"
+    tail_ladder: tuple[float, ...] = (0.0, -0.05)
     tail_growth: float = 1.5
     tail_budget: int = 5
     tail_min_progress: float = 0.05
@@ -554,6 +555,10 @@ class LearnedConfig:
         _check(math.isfinite(self.robust_tail_s) and self.robust_tail_s >= 0.0, "learned.robust_tail_s",
                self.robust_tail_s, "must be a finite number of seconds >= 0 (0: no handover)")
         _check(self.tail_rule in TAIL_RULES, "learned.tail_rule", self.tail_rule, f"must be one of {TAIL_RULES}")
+        object.__setattr__(self, "tail_ladder", tuple(float(s) for s in self.tail_ladder))
+        _check(1 <= len(self.tail_ladder) <= 8 and all(-1.0 <= s < 1.0 for s in self.tail_ladder)
+               and all(a > b for a, b in zip(self.tail_ladder, self.tail_ladder[1:])), "learned.tail_ladder",
+               list(self.tail_ladder), "must be 1 to 8 numbers in [-1, 1), strictly decreasing")
         _check(math.isfinite(self.tail_growth) and self.tail_growth > 1.0, "learned.tail_growth",
                self.tail_growth, "must be a number > 1")
         _check(isinstance(self.tail_budget, int) and 1 <= self.tail_budget <= 64, "learned.tail_budget",

@@ -169,7 +169,12 @@ class Arch:
         return n2l * (self.grid + 3) if self.is_kan else n2l
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        """The card's ``architecture``; ``target`` only when not the paper's ``log-shift`` (so the
+        cards written before targets existed read back as they were)."""
+        d = asdict(self)
+        if d["target"] == "log-shift":
+            del d["target"]
+        return d
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "Arch":

@@ -25,8 +25,9 @@ The trust (:class:`Trust`) and the stall rule wrap this: an untrusted network's 
 conventional TSG's (path "search"), and after learned.stall_updates trusted updates in a row
 that held τ_prev the next one is too (path "stall"); the audit checks the answer and judges the
 network (path "audit"; docs/learned_update_rule.md). Under robust Verify every update with
-|τ_prev| <= learned.robust_tail_s is answered before the trust, by a search around the last
-update's progress (path "gallop", ``learned.tail_rule``) or the conventional one (path "tail"), and
+|τ_prev| <= learned.robust_tail_s is answered before the trust (``learned.tail_rule``): by a
+network of the step's candidates (path "nn"), else a search around the last update's progress
+(path "gallop"), or by the conventional search (path "tail"), and
 a scheduled update with |τ_prev| <= tsg.zero_snap_s probes with it, before the ladder. In the code
 (:meth:`LearnedGovernor._keep`) the steps are one method each, in this order: ``_robust_tail``
 (then ``_tail``),
@@ -249,7 +250,8 @@ class LearnedGovernor:
         self.weights_sha256: str | None = None
         self._code = FEATURE_CODES[net.arch.features]
         self._rungs = np.array(lc.ladder, dtype=np.float64)
-        self._cands_ns = np.empty(len(lc.ladder), dtype=np.int64)
+        self._tail_rungs = np.array(lc.tail_ladder, dtype=np.float64)
+        self._cands_ns = np.empty(max(len(lc.ladder), len(lc.tail_ladder)), dtype=np.int64)
         #: The tail's memory (:meth:`_tail`): the last progress, 1 - τ_k / τ_{k-1} of the last
         #: update that moved τ (NaN: none yet), the gallops in a row that found none, and
         #: (learned.tail_backoff) the holds left before the next search and the current wait.
@@ -340,7 +342,7 @@ class LearnedGovernor:
         probe, audit, and the judgement of the update by the trust. The network runs only when a
         step needs its proposal (``propose``)."""
         if self._robust_tail(pred, tau_prev):
-            return self._tail(pred, x_d, t, tau_prev)
+            return self._tail(pred, x_d, t, tau_prev, propose)
         trust = self.trust
         if trust.searching:
             return self._search(pred, x_d, t, tau_prev, propose)
@@ -437,9 +439,15 @@ class LearnedGovernor:
         Verify")."""
         return pred.robust and abs(tau_prev) <= pred.config.learned.robust_tail_s
 
-    def _tail(self, pred: Predictor, x_d: ArrayLike, t: float, tau_prev: float
-              ) -> tuple[float, str, int, ChiefCache | None]:
-        """Robust Verify's tail (:meth:`_robust_tail`). ``learned.tail_rule`` "gallop": the
+    def _tail(self, pred: Predictor, x_d: ArrayLike, t: float, tau_prev: float,
+              propose: Callable[[], float]) -> tuple[float, str, int, ChiefCache | None]:
+        """Robust Verify's tail (:meth:`_robust_tail`). ``learned.tail_rule`` "network", with a
+        network of the step (target log-ratio: :attr:`NumpyNet.relative`): the candidates
+        τ_c (1 - s), s in ``learned.tail_ladder``, of its proposal τ_c = side |τ_prev| exp(NN),
+        verified in order, the first that passes answered [nn] (the networks of the step resolve
+        the tail's steps, 15-55 % of |τ| an update on the paper's orbit; docs/learned_update_rule.md,
+        "The tail to the network of the step"); none passing, or a network of ln|τ|, the gallop.
+        "gallop": the
         shift about the last update's progress q of the way to 0, τ_prev (1 - q), searched up or
         down by ``tail_growth`` and bracketed with at most ``tail_budget`` Verify calls
         (:meth:`Predictor.gallop`) [gallop]; none passing, τ_prev is held and the next gallop
@@ -468,7 +476,17 @@ class LearnedGovernor:
                 self._tail_holds = self._tail_wait
             return tau, PATH_TAIL, calls, None
         cache = pred.cache(t)
-        tau, q, q_fail, calls = pred.gallop(x_d, t, tau_prev, self._progress, lc.tail_growth, lc.tail_budget, cache)
+        calls = 0
+        if lc.tail_rule == "network" and self.net.relative:
+            n = ladder_kernel(propose(), tau_prev, int(pred.side), self._tail_rungs, pred.tol_ns / 1e9, 0.0,
+                              self._cands_ns)
+            if n:
+                tau, index, calls = pred.first_feasible_ns(x_d, t, self._cands_ns[:n], to_ns(tau_prev), 0, cache)
+                if index >= 0:
+                    self._tail_misses = 0
+                    return tau, PATH_NN, calls, cache
+        tau, q, q_fail, c = pred.gallop(x_d, t, tau_prev, self._progress, lc.tail_growth, lc.tail_budget, cache)
+        calls += c
         self._zero_failed = q_fail == 1.0   # inf: nothing failed
         if q > 0.0:
             self._tail_misses = 0
