@@ -682,17 +682,26 @@ def test_the_tail_network_rule_verifies_its_candidates_in_order(approach: str) -
         assert u.verify_calls == first + 1 + (abs(u.tau_s) <= cfg.tsg.zero_snap_s)
 
 
-def test_a_network_of_ln_tau_leaves_the_tail_to_the_gallop() -> None:
-    """``learned.tail_rule: network`` asks a network of the step; a network of ln|τ| (target
-    log-shift: here a constant one) does not resolve the tail's steps, and the tail is the
-    gallop's (or the conventional search's before any progress is known), never [nn]."""
+@pytest.mark.parametrize("case", ["log-shift", "foreign"])
+def test_the_tail_is_the_gallops_without_a_network_of_its_steps(case: str) -> None:
+    """``learned.tail_rule: network`` asks a network of the step made for this Verify; a network
+    of ln|τ| (target log-shift: here a constant one), or the robust CIKAN of the step flown at
+    another truth scale (0.5, ``learned.foreign_model``: its steps are scale 1's), leaves the tail
+    to the gallop (or the conventional search before any progress is known), never [nn]."""
     from cikan_ros.config import truth_overrides
     from cikan_ros.governor import PATH_GALLOP, PATH_NN, PATH_TAIL
+    from cikan_ros.learn.governor import load_learned_governor
 
-    cfg = load_config(None, **truth_overrides("realistic"), **{"tsg.robust": True, "learned.tail_rule": "network"})
+    extra = {"truth.scale": 0.5, "learned.foreign_model": True} if case == "foreign" else {}
+    cfg = load_config(None, **{**truth_overrides("realistic"), "tsg.robust": True, "learned.tail_rule": "network",
+                               "mission.duration_s": 4000.0, **extra})
     pred = Predictor.from_config(cfg)
-    gov = constant_governor(pred, 1e-3)
-    assert not gov.net.relative
+    if case == "foreign":
+        gov = load_learned_governor("cikan", pred)
+        assert gov.net.relative and gov.foreign is not None
+    else:
+        gov = constant_governor(pred, 1e-3)
+        assert not gov.net.relative
     res = run_mission(gov, sample_start(pred, 1), 1)
     tail = [u for u in res.updates if u.active and abs(u.tau_prev) <= cfg.learned.robust_tail_s]
     assert tail and {u.path for u in tail} <= {PATH_GALLOP, PATH_TAIL, "verify-zero"}

@@ -446,7 +446,8 @@ class LearnedGovernor:
         τ_c (1 - s), s in ``learned.tail_ladder``, of its proposal τ_c = side |τ_prev| exp(NN),
         verified in order, the first that passes answered [nn] (the networks of the step resolve
         the tail's steps, 15-55 % of |τ| an update on the paper's orbit; docs/learned_update_rule.md,
-        "The tail to the network of the step"); none passing, or a network of ln|τ|, the gallop.
+        "The tail to the network of the step"); none passing, a network of ln|τ|, or a model made
+        for another Verify or truth scale (:attr:`foreign`: its steps are not this tail's), the gallop.
         "gallop": the
         shift about the last update's progress q of the way to 0, τ_prev (1 - q), searched up or
         down by ``tail_growth`` and bracketed with at most ``tail_budget`` Verify calls
@@ -477,7 +478,7 @@ class LearnedGovernor:
             return tau, PATH_TAIL, calls, None
         cache = pred.cache(t)
         calls = 0
-        if lc.tail_rule == "network" and self.net.relative:
+        if lc.tail_rule == "network" and self.net.relative and self.foreign is None:
             n = ladder_kernel(propose(), tau_prev, int(pred.side), self._tail_rungs, pred.tol_ns / 1e9, 0.0,
                               self._cands_ns)
             if n:
