@@ -275,7 +275,8 @@ class LearnedGovernor:
                                 net.target_mean, net.target_std, net.relative, self._z, net.kernel_args)
 
     def proposal(self, x_d: ArrayLike, x_c: ArrayLike, tau_prev: float = math.nan) -> float:
-        """τ_c = side · exp(NN) on the nanosecond grid (side -1 behind the chief, +1 ahead); NaN
+        """τ_c = side · exp(NN) (side · |τ_{k-1}| exp(NN) for a network of the step) on the
+        nanosecond grid (side -1 behind the chief, +1 ahead); NaN
         if the network's output is not usable."""
         y = self.log_shift(x_d, x_c, tau_prev)
         if not (math.isfinite(y) and y <= MAX_LOG_SHIFT):
