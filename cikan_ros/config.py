@@ -523,10 +523,12 @@ class LearnedConfig:
     def __post_init__(self) -> None:
         _check(self.algorithm in LEARNED_ALGORITHMS, "learned.algorithm", self.algorithm,
                f"must be one of {LEARNED_ALGORITHMS}")
-        object.__setattr__(self, "ladder", tuple(float(s) for s in self.ladder))
-        _check(1 <= len(self.ladder) <= 8 and all(-1.0 <= s < 1.0 for s in self.ladder)
-               and all(a > b for a, b in zip(self.ladder, self.ladder[1:])), "learned.ladder",
-               list(self.ladder), "must be 1 to 8 numbers in [-1, 1), strictly decreasing")
+        for name in ("ladder", "tail_ladder"):   # s of the candidates tau_c (1 - s), in order
+            rungs = tuple(float(s) for s in getattr(self, name))
+            object.__setattr__(self, name, rungs)
+            _check(1 <= len(rungs) <= 8 and all(-1.0 <= s < 1.0 for s in rungs)
+                   and all(a > b for a, b in zip(rungs, rungs[1:])), f"learned.{name}",
+                   list(rungs), "must be 1 to 8 numbers in [-1, 1), strictly decreasing")
         _check(math.isfinite(self.min_step_s) and self.min_step_s >= 0, "learned.min_step_s",
                self.min_step_s, "must be >= 0")
         _check(math.isfinite(self.min_progress) and 0.0 <= self.min_progress < 1.0,
@@ -555,10 +557,6 @@ class LearnedConfig:
         _check(math.isfinite(self.robust_tail_s) and self.robust_tail_s >= 0.0, "learned.robust_tail_s",
                self.robust_tail_s, "must be a finite number of seconds >= 0 (0: no handover)")
         _check(self.tail_rule in TAIL_RULES, "learned.tail_rule", self.tail_rule, f"must be one of {TAIL_RULES}")
-        object.__setattr__(self, "tail_ladder", tuple(float(s) for s in self.tail_ladder))
-        _check(1 <= len(self.tail_ladder) <= 8 and all(-1.0 <= s < 1.0 for s in self.tail_ladder)
-               and all(a > b for a, b in zip(self.tail_ladder, self.tail_ladder[1:])), "learned.tail_ladder",
-               list(self.tail_ladder), "must be 1 to 8 numbers in [-1, 1), strictly decreasing")
         _check(math.isfinite(self.tail_growth) and self.tail_growth > 1.0, "learned.tail_growth",
                self.tail_growth, "must be a number > 1")
         _check(isinstance(self.tail_budget, int) and 1 <= self.tail_budget <= 64, "learned.tail_budget",

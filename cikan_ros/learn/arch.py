@@ -46,6 +46,22 @@ FAMILIES = ("cikan", "grbf", "rswaf", "relu", "gelu")
 KAN_FAMILIES = ("cikan", "grbf", "rswaf")
 #: What a network's de-normalised output is (module docstring): ln|τ| or ln(|τ| / |τ_{k-1}|).
 TARGETS = ("log-shift", "log-ratio")
+
+
+def target_problem(features: str, target: str) -> str | None:
+    """Why a network of feature set ``features`` cannot learn ``target``, or None."""
+    if target not in TARGETS:
+        return f"target must be one of {TARGETS}"
+    if target == "log-ratio" and not uses_tau_prev(features):
+        return "target 'log-ratio' needs a feature set with tau_prev (vnb-prev)"
+    return None
+
+
+def log_shift_offset(target: str, feats: NDArray) -> NDArray:
+    """What to add to a network's target to get ln|τ| (s), for raw features (..., n_in) -> (...):
+    ln|τ_{k-1}| (the last feature of ``vnb-prev``) for ``log-ratio``, else 0."""
+    feats = np.asarray(feats, dtype=np.float64)
+    return feats[..., -1].copy() if target == "log-ratio" else np.zeros(feats.shape[:-1])
 #: Buffers every model file carries (float64): feature and target normalisation.
 NORM_TENSORS = ("feature_mean", "feature_std", "target_mean", "target_std")
 
@@ -99,10 +115,9 @@ class Arch:
             object.__setattr__(self, "n_in", n_features(self.features))
         if self.n_in != n_features(self.features):
             bad(f"n_in must be {n_features(self.features)} for features {self.features!r}")
-        if self.target not in TARGETS:
-            bad(f"target must be one of {TARGETS}")
-        if self.target == "log-ratio" and not uses_tau_prev(self.features):
-            bad("target 'log-ratio' needs a feature set with tau_prev (vnb-prev)")
+        problem = target_problem(self.features, self.target)
+        if problem:
+            bad(problem)
 
     @property
     def relative(self) -> bool:
@@ -110,10 +125,8 @@ class Arch:
         return self.target == "log-ratio"
 
     def log_shift_offset(self, feats: NDArray) -> NDArray:
-        """What to add to the target to get ln|τ| (s), for raw features (..., n_in) -> (...):
-        ln|τ_{k-1}| (the last feature of ``vnb-prev``) for ``log-ratio``, else 0."""
-        feats = np.asarray(feats, dtype=np.float64)
-        return feats[..., -1].copy() if self.relative else np.zeros(feats.shape[:-1])
+        """:func:`log_shift_offset` of this network's target."""
+        return log_shift_offset(self.target, feats)
 
     # -- shape -------------------------------------------------------------------------------
     @property
@@ -573,12 +586,11 @@ def log_shift_kernel(x_d: NDArray, x_c: NDArray, code: int, tau_prev: float, mea
     network_forward, because numba rebuilds a cached function only when its own file changes:
     compiled elsewhere it could keep an old forward."""
     features_into(x_d, x_c, code, tau_prev, z[0])
-    for i in range(z.shape[1]):
+    n = z.shape[1]
+    offset = z[0, n - 1] if relative else 0.0   # the raw ln|τ_{k-1}| feature (-inf at τ_{k-1} = 0)
+    for i in range(n):
         z[0, i] = (z[0, i] - mean[i]) * inv_std[i]
-    y = target_mean + target_std * network_forward(z, *net_args)[0]
-    if relative:   # -inf at tau_prev = 0: an unusable proposal, as the feature's
-        y += math.log(abs(tau_prev)) if tau_prev != 0.0 else -math.inf
-    return y
+    return target_mean + target_std * network_forward(z, *net_args)[0] + offset
 
 
 class NumpyNet:

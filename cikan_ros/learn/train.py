@@ -60,9 +60,11 @@ def load_data(path: str | Path | Sequence[str | Path], kind: str = "vnb", target
     compute features (float64) and targets (``target``, :data:`~cikan_ros.learn.arch.TARGETS`)
     per split. Several files: e.g. conventional labels plus on-policy labels of a learned
     governor (``cikan dataset --governor``)."""
-    from .arch import Arch
+    from .arch import log_shift_offset, target_problem
 
-    arch = Arch("relu", 1, 1, features=kind, target=target)   # checks the pair (ModelFileError)
+    problem = target_problem(kind, target)
+    if problem:
+        raise ModelFileError(f"feature set {kind!r}: {problem}")
     import pandas as pd
 
     paths = [path] if isinstance(path, (str, Path)) else list(path)
@@ -91,7 +93,7 @@ def load_data(path: str | Path | Sequence[str | Path], kind: str = "vnb", target
         feats = features(part[list(XD_COLS)].to_numpy(), part[list(XC_COLS)].to_numpy(), kind,
                          part["tau_prev_s"].to_numpy(dtype=np.float64))
         tau = part["tau_star_s"].to_numpy(dtype=np.float64)
-        offset = arch.log_shift_offset(feats)
+        offset = log_shift_offset(target, feats)
         out[s] = SplitData(feats, np.log(np.abs(tau)) - offset, tau, part["mission"].to_numpy(), offset)
     if len(out["train"].y) == 0 or len(out["val"].y) == 0:
         raise DatasetError(f"dataset {path} needs non-empty train and val splits "
