@@ -211,6 +211,29 @@ def osculating_params_kernel(x: NDArray, mu: float, out: NDArray) -> None:
     out[P_SQMUA] = math.sqrt(mu * a)
 
 
+@nb.njit(cache=True, error_model="numpy")
+def osculating_orbit_kernel(x: NDArray, mu: float, t: float, out: NDArray) -> tuple[bool, float, float, float]:
+    """The packed orbit of state x[0:6] (km, km/s) at time t (s) into ``out`` (mean anomaly at
+    t = 0) and its angles (inclination, RAAN, argument of periapsis; rad) read off the perifocal
+    vectors P, Q and W = P x Q: (ok, i, raan, argp); ok False when x is not finite or not on an
+    ellipse. An equatorial orbit (sin i <= 1e-12) has RAAN 0 and its periapsis measured from x."""
+    if x.shape[0] != 6:
+        return False, 0.0, 0.0, 0.0
+    r = math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2])
+    v2 = x[3] * x[3] + x[4] * x[4] + x[5] * x[5]
+    if not (math.isfinite(r + x[3] + x[4] + x[5]) and r > 0.0 and 0.5 * v2 < mu / r):
+        return False, 0.0, 0.0, 0.0
+    osculating_params_kernel(x, mu, out)
+    out[P_M0] -= out[P_N] * t
+    px, py, pz, qx, qy, qz = out[5], out[6], out[7], out[8], out[9], out[10]
+    wx, wy, wz = py * qz - pz * qy, pz * qx - px * qz, px * qy - py * qx
+    inc = math.acos(min(1.0, max(-1.0, wz)))
+    two_pi = 2 * math.pi
+    if math.sin(inc) > 1e-12:
+        return True, inc, math.atan2(wx, -wy) % two_pi, math.atan2(pz, qz) % two_pi
+    return True, inc, 0.0, math.atan2(py, px) % two_pi
+
+
 def _rotation_pq(i: float, raan: float, argp: float) -> tuple[NDArray, NDArray]:
     """Perifocal unit vectors P (to periapsis) and Q in ECI for angles in radians."""
     cO, sO = math.cos(raan), math.sin(raan)
@@ -257,28 +280,20 @@ class KeplerOrbit:
     def from_state(cls, x: ArrayLike, t: float, mu: float) -> "KeplerOrbit":
         """The osculating orbit of ECI state x (km, km/s) at time t (s since epoch).
 
-        Built from the packed form (:func:`osculating_params_kernel`, a few microseconds: a
-        governor re-anchors on every update under a J2 truth); the angles are read off the
-        perifocal vectors P, Q and W = P x Q."""
+        Built from the packed form in one compiled call (:func:`osculating_orbit_kernel`: a
+        governor re-anchors on every update under a J2 truth)."""
         x = np.ascontiguousarray(x, dtype=float)
-        a, b, c, d, e, f = x.tolist()
-        r = math.sqrt(a * a + b * b + c * c)
-        if not (math.isfinite(r + d + e + f) and r > 0.0 and 0.5 * (d * d + e * e + f * f) < mu / r):
-            raise StateError(f"state is not on an elliptic orbit: {x}")
         arr = np.empty(N_PARAMS)
-        osculating_params_kernel(x, mu, arr)
-        arr[P_M0] -= arr[P_N] * float(t)
-        px, py, pz, qx, qy, qz = arr[5:11].tolist()
-        wx, wy, wz = py * qz - pz * qy, pz * qx - px * qz, px * qy - py * qx
-        inc = math.acos(min(1.0, max(-1.0, wz)))
-        if math.sin(inc) > 1e-12:
-            raan = math.atan2(wx, -wy) % (2 * math.pi)
-            argp = math.atan2(pz, qz) % (2 * math.pi)
-        else:  # equatorial: the node is undefined, the periapsis measured from x
-            raan, argp = 0.0, math.atan2(py, px) % (2 * math.pi)
-        orbit = cls(float(arr[P_A]), float(arr[P_E]), inc, raan, argp, float(arr[P_M0]), mu)
+        ok, inc, raan, argp = osculating_orbit_kernel(x, float(mu), float(t), arr)
+        if not ok or x.shape != (6,):
+            raise StateError(f"state is not on an elliptic orbit: {x}")
         arr.setflags(write=False)
-        object.__setattr__(orbit, "_params", arr)
+        # The dataclass's frozen __init__ sets each field through object.__setattr__ (~1 us of the
+        # ~3 us this costs; a governor under a J2 truth re-anchors on every update): the same
+        # fields, set at once.
+        orbit = object.__new__(cls)
+        orbit.__dict__.update(a=float(arr[P_A]), e=float(arr[P_E]), i=inc, raan=raan, argp=argp,
+                              m0=float(arr[P_M0]), mu=mu, _params=arr)
         return orbit
 
     @property

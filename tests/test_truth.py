@@ -13,6 +13,7 @@ from cikan_ros.config import load_config, truth_overrides
 from cikan_ros.dynamics import J2_EARTH, R_EARTH_KM, j2_acceleration, rk4_step
 from cikan_ros.errors import ConfigError, StateError
 from cikan_ros.orbit import KeplerOrbit
+from cikan_ros.mission import nominal_start
 from cikan_ros.truth import Truth, gauss_markov
 from cikan_ros.tsg import ChiefAnchor, Predictor
 
@@ -142,6 +143,56 @@ def test_chief_anchor_tolerance_is_per_component_and_bad_states_are_named():
     with pytest.raises(StateError, match="shape"):
         anchor(x_c[:5], 600.0)
     assert anchor.re_anchors == 1
+
+
+def test_j2_chief_rows_are_integrated_from_the_anchored_chief_whichever_buffer_holds_them():
+    """Under the J2 prediction model the chief rows of an update are RK4 with J2 from the chief
+    anchored at t (row j from row j - 1); the caches of a predictor and its re-anchored copies
+    reuse one buffer once the cache before is gone. Rows left by an earlier update (a longer
+    rollout, another chief) must not leak into the next: the rows equal a fresh predictor's, and
+    scipy's integration of the anchored chief."""
+    cfg = realistic(**{"tsg.robust": True})
+    pred = Predictor.from_config(cfg)
+    x_d = nominal_start(pred)
+    tau0, _ = pred.initial_shift(x_d, 0.0)
+
+    def filled(cache) -> np.ndarray:
+        done = ~np.isnan(cache.rows[:, 6])
+        assert done[0] and not np.any(done[int(np.argmin(done)):])  # a prefix
+        return cache.rows[done]
+
+    first = pred.cache(0.0)
+    assert pred.verify(x_d, 0.0, tau0, first)   # a passing rollout: rows to its terminal sample
+    n_first = len(filled(first))
+    first_rows = first.rows
+    del first
+    moved = pred.orbit.state(0.0) + ANCHOR_OFFSET
+    anchored = ChiefAnchor(pred)(moved, 0.0)
+    second = anchored.cache(0.0)
+    assert second.rows is first_rows   # the buffer came back: nothing held it
+    fresh = Predictor.from_config(cfg).with_orbit(anchored.orbit).cache(0.0)
+    assert fresh.rows is not first_rows
+    for tau in (0.0, tau0 / 2):   # rollouts shorter than the first's
+        assert anchored.verify(x_d, 0.0, tau, second) == anchored.verify(x_d, 0.0, tau, fresh)
+    a, b = filled(second), filled(fresh)
+    assert 1 < len(a) < n_first and len(a) == len(b)
+    np.testing.assert_array_equal(a, b)
+    np.testing.assert_allclose(a[0, :6], moved, rtol=0, atol=1e-9)
+    # row j is the anchored chief integrated over j samples (scipy, the J2 potential's gradient)
+    j = len(a) - 1
+    ref = solve_ivp(lambda _t, y: np.concatenate([y[3:], -MU * y[:3] / np.linalg.norm(y[:3]) ** 3
+                                                  + j2_acceleration(y[:3], MU)]),
+                    (0.0, j * cfg.tsg.sample_period_s), a[0, :6], method="DOP853", rtol=1e-12, atol=1e-12).y[:, -1]
+    np.testing.assert_allclose(a[j, :3], ref[:3], rtol=0, atol=1e-6)
+    # a cache still in use is never overwritten: the next one gets a buffer of its own
+    held = anchored.cache(0.0)
+    other = anchored.cache(10.0)
+    assert other.rows is not held.rows
+    np.testing.assert_array_equal(held.rows[0], a[0])
+
+
+#: A measured chief 50 m and 1 cm/s off the configured one (the anchor makes a new chief).
+ANCHOR_OFFSET = np.array([0.05, -0.02, 0.01, 1e-5, 0.0, 0.0])
 
 
 @pytest.mark.parametrize("key,value", [("truth.nav_pos_floor_km", -1.0),

@@ -251,12 +251,13 @@ class LearnedGovernor:
         self._code = FEATURE_CODES[net.arch.features]
         self._rungs = np.array(lc.ladder, dtype=np.float64)
         self._tail_rungs = np.array(lc.tail_ladder, dtype=np.float64)
-        self._cands_ns = np.empty(max(len(lc.ladder), len(lc.tail_ladder)), dtype=np.int64)
+        # the ladder's candidates, or 0 and the tail's (robust Verify's last approach: :meth:`_tail`)
+        self._cands_ns = np.empty(max(len(lc.ladder), len(lc.tail_ladder)) + 1, dtype=np.int64)
         #: The tail's memory (:meth:`_tail`): the last progress, 1 - τ_k / τ_{k-1} of the last
         #: update that moved τ (NaN: none yet), the gallops in a row that found none, and
         #: (learned.tail_backoff) the holds left before the next search and the current wait.
         self.remember_progress(math.nan)
-        self._zero_failed = False  # this update's gallop verified 0 itself, and it failed
+        self._zero_failed = False  # this update verified 0 itself, and it failed (reset per update)
 
     @classmethod
     def from_model(cls, model: LoadedModel, predictor: Predictor, name: str | None = None
@@ -305,13 +306,13 @@ class LearnedGovernor:
         # the network's proposal, made when a path needs it (a searching update only to judge it)
         propose = functools.partial(self.proposal, x_d, x_c, tau_prev)
         pred = self.anchor(x_c, t)
+        self._zero_failed = False
         if pred.config.learned.algorithm == "paper":
             tau, path, calls, cache = self._paper(pred, x_d, t, tau_prev, propose())
         else:
             tau, path, calls, cache = self._keep(pred, x_d, t, tau_prev, propose, k)
         if (path not in SEARCHED and tau != 0.0 and abs(tau) <= pred.config.tsg.zero_snap_s
-                and not (path in (PATH_GALLOP, PATH_SEARCH_LADDER, PATH_SEARCH_HOLD)
-                         and self._zero_failed)):  # this update verified 0 itself, and it failed
+                and not self._zero_failed):  # this update verified 0 itself, and it failed
             calls += 1
             if pred.verify(x_d, t, 0.0, cache or pred.cache(t)):
                 tau, path = 0.0, PATH_VERIFY_ZERO
@@ -480,16 +481,26 @@ class LearnedGovernor:
         cache = pred.cache(t)
         calls = 0
         if lc.tail_rule == "network" and self.net.relative and self.foreign is None:
+            cands = self._cands_ns
             n = ladder_kernel(propose(), tau_prev, int(pred.side), self._tail_rungs, pred.tol_ns / 1e9, 0.0,
-                              self._cands_ns)
+                              cands[1:])
             if n:
-                tau, index, calls = pred.first_feasible_ns(x_d, t, self._cands_ns[:n], to_ns(tau_prev), 0, cache)
+                # |τ_prev| <= zero_snap_s: every answer here gets the zero test, so verify 0 first
+                # (the same answer; one wrapper call fewer on most of the last approach's updates)
+                zero_first = abs(tau_prev) <= pred.config.tsg.zero_snap_s and cands[1] != 0
+                cands[0] = 0
+                tau, index, calls = pred.first_feasible_ns(x_d, t, cands[:n + 1] if zero_first else cands[1:n + 1],
+                                                           to_ns(tau_prev), 0, cache)
+                self._zero_failed = zero_first and index != 0
+                if zero_first and index == 0:
+                    self._tail_misses = 0
+                    return 0.0, PATH_VERIFY_ZERO, calls, cache
                 if index >= 0:
                     self._tail_misses = 0
                     return tau, PATH_NN, calls, cache
         tau, q, q_fail, c = pred.gallop(x_d, t, tau_prev, self._progress, lc.tail_growth, lc.tail_budget, cache)
         calls += c
-        self._zero_failed = q_fail == 1.0   # inf: nothing failed
+        self._zero_failed = self._zero_failed or q_fail == 1.0   # inf: nothing failed
         if q > 0.0:
             self._tail_misses = 0
         else:
