@@ -217,8 +217,6 @@ def osculating_orbit_kernel(x: NDArray, mu: float, t: float, out: NDArray) -> tu
     t = 0) and its angles (inclination, RAAN, argument of periapsis; rad) read off the perifocal
     vectors P, Q and W = P x Q: (ok, i, raan, argp); ok False when x is not finite or not on an
     ellipse. An equatorial orbit (sin i <= 1e-12) has RAAN 0 and its periapsis measured from x."""
-    if x.shape[0] != 6:
-        return False, 0.0, 0.0, 0.0
     r = math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2])
     v2 = x[3] * x[3] + x[4] * x[4] + x[5] * x[5]
     if not (math.isfinite(r + x[3] + x[4] + x[5]) and r > 0.0 and 0.5 * v2 < mu / r):
@@ -284,8 +282,10 @@ class KeplerOrbit:
         governor re-anchors on every update under a J2 truth)."""
         x = np.ascontiguousarray(x, dtype=float)
         arr = np.empty(N_PARAMS)
-        ok, inc, raan, argp = osculating_orbit_kernel(x, float(mu), float(t), arr)
-        if not ok or x.shape != (6,):
+        ok = x.shape == (6,)   # checked before the kernel, which is compiled for 1-d states
+        if ok:
+            ok, inc, raan, argp = osculating_orbit_kernel(x, float(mu), float(t), arr)
+        if not ok:
             raise StateError(f"state is not on an elliptic orbit: {x}")
         arr.setflags(write=False)
         # The dataclass's frozen __init__ sets each field through object.__setattr__ (~1 us of the

@@ -301,8 +301,8 @@ class J2RowBuffer:
     buffer reused by the caches of a predictor and its re-anchored copies.
 
     Under a J2 truth the governors re-anchor on every update, and a fresh buffer per update
-    (~0.7 MB for the paper orbit's 4,329 samples, every row marked not computed) cost ~4 us of
-    the ~60 us a trusted learned update takes (measured). The buffer is handed out again only
+    (~0.7 MB for the paper orbit's 4,329 samples, every row marked not computed) cost ~3 us of
+    the ~70 us a trusted learned update took (measured). The buffer is handed out again only
     when the cache that holds it is gone (a weak reference: a cache in use is never
     overwritten); else a new one is made. The rows are the same bits either way: row 0 from the
     anchored orbit, row j integrated from row j - 1.

@@ -145,6 +145,10 @@ def test_chief_anchor_tolerance_is_per_component_and_bad_states_are_named():
     assert anchor.re_anchors == 1
 
 
+#: A measured chief 50 m and 1 cm/s off the configured one (the anchor makes a new chief).
+ANCHOR_OFFSET = np.array([0.05, -0.02, 0.01, 1e-5, 0.0, 0.0])
+
+
 def test_j2_chief_rows_are_integrated_from_the_anchored_chief_whichever_buffer_holds_them():
     """Under the J2 prediction model the chief rows of an update are RK4 with J2 from the chief
     anchored at t (row j from row j - 1); the caches of a predictor and its re-anchored copies
@@ -189,10 +193,6 @@ def test_j2_chief_rows_are_integrated_from_the_anchored_chief_whichever_buffer_h
     other = anchored.cache(10.0)
     assert other.rows is not held.rows
     np.testing.assert_array_equal(held.rows[0], a[0])
-
-
-#: A measured chief 50 m and 1 cm/s off the configured one (the anchor makes a new chief).
-ANCHOR_OFFSET = np.array([0.05, -0.02, 0.01, 1e-5, 0.0, 0.0])
 
 
 @pytest.mark.parametrize("key,value", [("truth.nav_pos_floor_km", -1.0),
