@@ -160,6 +160,12 @@ class TSGConfig:
     #: The ancillary tube also bounds the truth between samples (docs/robustness.md, "Between
     #: samples, derived"); false: at the samples only, as the ball tube.
     ancillary_between: bool = True
+    #: How the ancillary tube bounds a loop's response to a forcing bounded over many samples
+    #: (docs/robustness.md, "The l1 bound"): "geometric", the lam-weighted constants alone
+    #: (C / (1 - lam)); "l1", also the l1 norms of the loops' impulse responses for the forcing's
+    #: constant part and the terminal balls, and the tracking handoff continuing the plan's
+    #: recursions.
+    ancillary_bound: str = "geometric"
     #: The ancillary tube's gain schedule (docs/robustness.md, "Gains by range"): a plan that
     #: starts at a measured range of at least ``ancillary_bands_km[i]`` (km, ascending) tracks
     #: with the LQ weight ``ancillary_bands_r[i]`` I; nearer, ``ancillary_r_diag``. Each plan
@@ -178,6 +184,8 @@ class TSGConfig:
         _check(self.tube in ("ball", "ancillary"), "tsg.tube", self.tube, "must be 'ball' or 'ancillary'")
         _check(isinstance(self.ancillary_between, bool), "tsg.ancillary_between", self.ancillary_between,
                "must be true or false")
+        _check(self.ancillary_bound in ANCILLARY_BOUNDS, "tsg.ancillary_bound", self.ancillary_bound,
+               f"must be one of {ANCILLARY_BOUNDS}")
         _check(math.isfinite(self.ancillary_gamma) and 0.0 < self.ancillary_gamma <= 1.0,
                "tsg.ancillary_gamma", self.ancillary_gamma, "must lie in (0, 1]")
         object.__setattr__(self, "ancillary_r_diag", tuple(float(r) for r in self.ancillary_r_diag))
@@ -259,6 +267,8 @@ class MissionConfig:
 
 #: Gravity models of the truth and of the prediction: two-body, or two-body plus Earth's J2.
 GRAVITY_MODELS = ("two-body", "j2")
+#: How the ancillary tube bounds a loop's response to a lasting forcing (``tsg.ancillary_bound``).
+ANCILLARY_BOUNDS = ("geometric", "l1")
 
 
 #: Navigation error models of the truth: a rate-limited Gauss-Markov output ("realistic") or a

@@ -64,7 +64,22 @@ ANCILLARY_KEYS = ("lam", "kp", "kv", "cpe", "cve") + tuple(
 #: The ancillary tube's check of the truth between samples (``tsg.ancillary_between``,
 #: :func:`interval_ok`): on when 1.
 R_BETWEEN = 44 + len(ANCILLARY_KEYS)
-N_RPARAMS = R_BETWEEN + 1
+#: The l1 bounds of the ancillary tube (``tsg.ancillary_bound`` l1; docs/robustness.md, "The l1 bound"):
+#: on when 1, then the l1 norms of the loops' impulse responses, L_XY = sum_m |X Phi^m Y|
+#: (:func:`tube_constants`, keys "l" + the constant's name), of the FTRE handoff loop (RL_) and
+#: of the tracking loop (RLA_).
+R_L1 = R_BETWEEN + 1
+L1_KEYS = tuple(f"l{c}{row}{col}" for c in ("d", "cn") for row in "pv" for col in "pv") + ("lcpe", "lcve")
+(RL_DPP, RL_DPV, RL_DVP, RL_DVV, RL_CNPP, RL_CNPV, RL_CNVP, RL_CNVV, RL_CPE, RL_CVE) = range(
+    R_L1 + 1, R_L1 + 1 + len(L1_KEYS))
+(RLA_DPP, RLA_DPV, RLA_DVP, RLA_DVV, RLA_CNPP, RLA_CNPV, RLA_CNVP, RLA_CNVV, RLA_CPE, RLA_CVE) = range(
+    RL_CVE + 1, RL_CVE + 1 + len(L1_KEYS))
+#: The tracking loop's transient envelope under ``tsg.ancillary_bound`` l1: sup |X Phi^m Y| over
+#: the orbit and the thruster maps for m = 0 .. N_ENV - 1 (blocks pp, pv, vp, vv, N_ENV each from
+#: RA_ENV); beyond, C0 lam^m (:func:`transient_bound`).
+N_ENV = 64
+RA_ENV = RLA_CVE + 1
+N_RPARAMS = RA_ENV + 4 * N_ENV
 
 #: Powers of the closed-loop matrix scanned for the constants C: at least this many, and at least
 #: POWER_SPAN / (1 - lam) (a slow loop's transient peaks later: lam = 0.993 near m = 145).
@@ -162,7 +177,7 @@ def tube_constants(orbit: KeplerOrbit, cfg: ControlConfig, bias: float = 0.0,
     _, b_all, k_all = frozen_loops(orbit, cfg)
     stride = max(1, round(ANALYSIS_STEP_DEG / cfg.grid_deg))
     keys = ("lam", "kp", "kv") + tuple(f"{c}{row}{col}" for c in ("c0", "g", "d", "h", "e", "cn")
-                                        for row in "pv" for col in "pv") + ("cpe", "cve")
+                                        for row in "pv" for col in "pv") + ("cpe", "cve") + L1_KEYS
     out = {k: 0.0 for k in keys}
     blocks = (("p", slice(0, 3)), ("v", slice(3, 6)))
     lam, phi_all, bmk_all = loop_radius(orbit, cfg, bias, pointing_rad)
@@ -198,8 +213,9 @@ def tube_constants(orbit: KeplerOrbit, cfg: ControlConfig, bias: float = 0.0,
     # DC response to a constant navigation error: sum_l Phi^l B M K = (I - Phi)^-1 B M K, and
     # what is left of it after m steps: D_m = sum_{l > m} Phi^l B M K = Phi^(m+1) (DC).
     dc = np.linalg.solve(np.eye(6) - phi, bmk)
-    best = {k: np.zeros(len(phi)) for k in keys if k[0] in "cde"}
+    best = {k: np.zeros(len(phi)) for k in keys if k[0] in "cde" or k in L1_KEYS}
     power = np.broadcast_to(np.eye(6), phi.shape).copy()
+    env = {f"{row}{col}": np.zeros((N_ENV, len(phi))) for row in "pv" for col in "pv"}
     for m in range(n_powers + 1):
         s = lam ** -m
         nxt = phi @ power
@@ -207,19 +223,34 @@ def tube_constants(orbit: KeplerOrbit, cfg: ControlConfig, bias: float = 0.0,
         for row, rs in blocks:
             for col, cs in blocks:
                 c0 = norms(power[:, rs, cs])
+                if m < N_ENV:
+                    env[f"{row}{col}"][m] = c0
                 np.maximum(best[f"c0{row}{col}"], c0 * s, out=best[f"c0{row}{col}"])
                 # the prediction's own loop (M = I): how far its transient can carry it
                 np.maximum(best[f"e{row}{col}"], np.where(nominal, c0, 0.0), out=best[f"e{row}{col}"])
-                np.maximum(best[f"d{row}{col}"], norms(pd[:, rs, cs]) * s, out=best[f"d{row}{col}"])
+                nd, nn = norms(pd[:, rs, cs]), norms(pn[:, rs, cs])
+                np.maximum(best[f"d{row}{col}"], nd * s, out=best[f"d{row}{col}"])
                 # the loop's response to the navigation error itself (not its changes), for an
                 # error that may jump anywhere in its bound at every sample (truth.nav_model filter)
-                np.maximum(best[f"cn{row}{col}"], norms(pn[:, rs, cs]) * s, out=best[f"cn{row}{col}"])
-            np.maximum(best[f"c{row}e"], norms(pb[:, rs]) * s, out=best[f"c{row}e"])
+                np.maximum(best[f"cn{row}{col}"], nn * s, out=best[f"cn{row}{col}"])
+                best[f"ld{row}{col}"] += nd  # the l1 norms of the impulse responses
+                best[f"lcn{row}{col}"] += nn
+            ne = norms(pb[:, rs])
+            np.maximum(best[f"c{row}e"], ne * s, out=best[f"c{row}e"])
+            best[f"lc{row}e"] += ne
         power = nxt
+    # The l1 sums' tail beyond the last power: |X Phi^m Y| <= C lam^m, summed over m > n_powers.
+    tail = lam ** (n_powers + 1) / (1.0 - lam)
+    for k in L1_KEYS:
+        best[k] += best[k[1:]] * tail
     # per analysed anomaly, the worst over its maps
     per_anomaly = {k: v.reshape(n_anomalies, len(maps)).max(axis=1) for k, v in best.items()}
     for k, values in per_anomaly.items():
         out[k] = _with_grid_term(values)
+    # the transient envelope sup |X Phi^m Y| per power m (rows of "env" + block: tuples of N_ENV)
+    for k, per_m in env.items():
+        worst = per_m.reshape(N_ENV, n_anomalies, len(maps)).max(axis=2)
+        out[f"env{k}"] = tuple(min(_with_grid_term(v), out[f"c0{k}"] * lam ** m) for m, v in enumerate(worst))
     return out
 
 
@@ -315,6 +346,13 @@ def robust_params(cfg: Config, orbit: KeplerOrbit) -> NDArray:
         for i, name in enumerate(ANCILLARY_KEYS):
             rp[RA_LAM + i] = ta[name]
         rp[R_BETWEEN] = 1.0 if cfg.tsg.ancillary_between else 0.0
+        if cfg.tsg.ancillary_bound == "l1":
+            rp[R_L1] = 1.0
+            for i, name in enumerate(L1_KEYS):
+                rp[RL_DPP + i] = tc[name]
+                rp[RLA_DPP + i] = ta[name]
+            for i, block in enumerate(("pp", "pv", "vp", "vv")):
+                rp[RA_ENV + i * N_ENV:RA_ENV + (i + 1) * N_ENV] = ta[f"env{block}"]
     rp.setflags(write=False)
     return rp
 
@@ -490,13 +528,26 @@ def robust_terminal_ok(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, dp: f
         bp, bv, d_p, d_v = nav_terms(rp, rr, vel + big_v + sig, ts)
         eta = rp[R_EPSU] * un + rp[R_DMAX] + rp[R_KG] * rr
         if rp[R_NJUMP] != 0.0:  # a jumping error: its response, no offset (tube_step_jump)
-            new_r = max(big_r, gain * (rp[R_CNPP] * bp + rp[R_CNPV] * bv + rp[R_CPE] * eta))
-            new_s = max(big_s, gain * (rp[R_CNVP] * bp + rp[R_CNVV] * bv + rp[R_CVE] * eta))
+            inf_r = gain * (rp[R_CNPP] * bp + rp[R_CNPV] * bv + rp[R_CPE] * eta)
+            inf_s = gain * (rp[R_CNVP] * bp + rp[R_CNVV] * bv + rp[R_CVE] * eta)
+            l1_r = rp[RL_CNPP] * bp + rp[RL_CNPV] * bv + rp[RL_CPE] * eta
+            l1_s = rp[RL_CNVP] * bp + rp[RL_CNVV] * bv + rp[RL_CVE] * eta
+            if rp[R_L1] != 0.0:  # the l1 norm's bound of the same forcing (docs/robustness.md, "The l1 bound")
+                new_r = l1_fixed_point(big_r, inf_r, l1_r)
+                new_s = l1_fixed_point(big_s, inf_s, l1_s)
+            else:
+                new_r, new_s = max(big_r, inf_r), max(big_s, inf_s)
         else:
-            new_r = max(big_r, gain * (rp[R_DPP] * d_p + rp[R_DPV] * d_v + rp[R_CPE] * eta)) \
-                + rp[R_GPP] * bp + rp[R_GPV] * bv
-            new_s = max(big_s, gain * (rp[R_DVP] * d_p + rp[R_DVV] * d_v + rp[R_CVE] * eta)) \
-                + rp[R_GVP] * bp + rp[R_GVV] * bv
+            inf_r = gain * (rp[R_DPP] * d_p + rp[R_DPV] * d_v + rp[R_CPE] * eta)
+            inf_s = gain * (rp[R_DVP] * d_p + rp[R_DVV] * d_v + rp[R_CVE] * eta)
+            l1_r = rp[RL_DPP] * d_p + rp[RL_DPV] * d_v + rp[RL_CPE] * eta
+            l1_s = rp[RL_DVP] * d_p + rp[RL_DVV] * d_v + rp[RL_CVE] * eta
+            if rp[R_L1] != 0.0:
+                new_r, new_s = l1_fixed_point(big_r, inf_r, l1_r), l1_fixed_point(big_s, inf_s, l1_s)
+            else:
+                new_r, new_s = max(big_r, inf_r), max(big_s, inf_s)
+            new_r = new_r + rp[R_GPP] * bp + rp[R_GPV] * bv
+            new_s = new_s + rp[R_GVP] * bp + rp[R_GVV] * bv
         settled = new_r - rho <= 1e-12 and new_s - sig <= 1e-15  # 1 nm, 1 pm/s
         rho, sig = new_r, new_s
         if settled:
@@ -572,6 +623,25 @@ def gain_margin(orbit: KeplerOrbit, cfg: ControlConfig, tol: float = 1e-4) -> fl
 # times the error at sample 0.
 
 
+@nb.njit(cache=True, error_model="numpy", inline="always")
+def transient_bound(rp: NDArray, m: int, xp: float, xv: float) -> tuple[float, float]:
+    """Bounds of |P Phi^m e_0| and |V Phi^m e_0| (km, km/s) for |e_0,p| <= xp, |e_0,v| <= xv,
+    Phi the tracking loop (``tsg.ancillary_bound`` l1): its envelope sup |X Phi^m Y| for m <
+    N_ENV, else C0 lam^m."""
+    if m < N_ENV:
+        return (rp[RA_ENV + m] * xp + rp[RA_ENV + N_ENV + m] * xv,
+                rp[RA_ENV + 2 * N_ENV + m] * xp + rp[RA_ENV + 3 * N_ENV + m] * xv)
+    f = rp[RA_LAM] ** m
+    return f * (rp[RA_C0PP] * xp + rp[RA_C0PV] * xv), f * (rp[RA_C0VP] * xp + rp[RA_C0VV] * xv)
+
+
+@nb.njit(cache=True, error_model="numpy", inline="always")
+def start_transients(rp: NDArray, b0p: float, b0v: float) -> tuple[float, float, float, float]:
+    """The initial errors of the ancillary tube's two recursions from the navigation bounds at
+    sample 0 (:func:`ancillary_start`): the transient -(I - G) delta_0 (H b_0) and -delta_0."""
+    return (rp[RA_HPP] * b0p + rp[RA_HPV] * b0v, rp[RA_HVP] * b0p + rp[RA_HVV] * b0v, b0p, b0v)
+
+
 @nb.njit(cache=True, error_model="numpy")
 def ancillary_start(rp: NDArray, rng: float) -> tuple[float, float, float, float, float, float]:
     """The ancillary tube at sample 0, the measured state at range rng (km): e_0 = -delta_0, so
@@ -583,6 +653,10 @@ def ancillary_start(rp: NDArray, rng: float) -> tuple[float, float, float, float
     bv = rp[R_NVF] + rp[R_NVG] * true_rng
     zp = rp[RA_HPP] * bp + rp[RA_HPV] * bv
     zv = rp[RA_HVP] * bp + rp[RA_HVV] * bv
+    if rp[R_L1] != 0.0:  # the transients' envelope at m = 0 (transient_bound), not C0
+        r1, s1 = transient_bound(rp, 0, zp, zv)
+        r2, s2 = transient_bound(rp, 0, bp, bv)
+        return bp, bv, r1, s1, r2, s2
     r1 = rp[RA_C0PP] * zp + rp[RA_C0PV] * zv
     s1 = rp[RA_C0VP] * zp + rp[RA_C0VV] * zv
     r2 = rp[RA_C0PP] * bp + rp[RA_C0PV] * bv
@@ -592,7 +666,8 @@ def ancillary_start(rp: NDArray, rng: float) -> tuple[float, float, float, float
 
 @nb.njit(cache=True, error_model="numpy")
 def ancillary_step(rp: NDArray, u_max: float, ts: float, x: NDArray, xc: NDArray, u: NDArray,
-                   rng: float, rho: float, sig: float, r1: float, s1: float, r2: float, s2: float
+                   rng: float, rho: float, sig: float, r1: float, s1: float, r2: float, s2: float,
+                   j: int = 0, b0p: float = 0.0, b0v: float = 0.0
                    ) -> tuple[float, float, float, float, float, float, bool]:
     """The ancillary tube from sample j to j + 1 around the prediction x (range rng, km; chief
     xc) with the prediction's command u (km/s^2): (rho, sigma, R1, S1, R2, S2, headroom).
@@ -600,7 +675,9 @@ def ancillary_step(rp: NDArray, u_max: float, ts: float, x: NDArray, xc: NDArray
     Headroom: the truth's command u_p - K_a (e + delta) stays within u_max when |u_p| +
     |K_a,p| Dp + |K_a,v| Dv <= u_max, Dp and Dv the bounds of e + delta's position and velocity:
     min(R1 + H b + G Delta, rho + b) (e + delta = z + (I - G) delta_j + G (delta_j - delta_(j-1))).
-    Without headroom the linear error system does not hold and the shift is refused (False)."""
+    Without headroom the linear error system does not hold and the shift is refused (False).
+    Under ``tsg.ancillary_bound`` l1 the forcing's constant part and the initial transients
+    (from the navigation bounds b0p, b0v at sample 0) are bounded apart (:func:`l1_floor_step`)."""
     vrel = math.sqrt((x[3] - xc[3]) ** 2 + (x[4] - xc[4]) ** 2 + (x[5] - xc[5]) ** 2)
     rr = rng + rho
     bp, bv, dp, dv = nav_terms(rp, rr, vrel + sig, ts)
@@ -609,13 +686,88 @@ def ancillary_step(rp: NDArray, u_max: float, ts: float, x: NDArray, xc: NDArray
         return rho, sig, r1, s1, r2, s2, False
     eta = rp[R_EPSU] * un + rp[R_DMAX] + rp[R_KG] * rr
     lam = rp[RA_LAM]
-    r1 = lam * r1 + rp[RA_DPP] * dp + rp[RA_DPV] * dv + rp[RA_CPE] * eta
-    s1 = lam * s1 + rp[RA_DVP] * dp + rp[RA_DVV] * dv + rp[RA_CVE] * eta
-    r2 = lam * r2 + rp[RA_CNPP] * bp + rp[RA_CNPV] * bv + rp[RA_CPE] * eta
-    s2 = lam * s2 + rp[RA_CNVP] * bp + rp[RA_CNVV] * bv + rp[RA_CVE] * eta
+    if rp[R_L1] != 0.0:
+        r1, s1, r2, s2 = l1_floor_step(rp, ts, lam, j, r1, s1, r2, s2, bp, bv, dp, dv, eta, b0p, b0v)
+    else:
+        r1 = lam * r1 + rp[RA_DPP] * dp + rp[RA_DPV] * dv + rp[RA_CPE] * eta
+        s1 = lam * s1 + rp[RA_DVP] * dp + rp[RA_DVV] * dv + rp[RA_CVE] * eta
+        r2 = lam * r2 + rp[RA_CNPP] * bp + rp[RA_CNPV] * bv + rp[RA_CPE] * eta
+        s2 = lam * s2 + rp[RA_CNVP] * bp + rp[RA_CNVV] * bv + rp[RA_CVE] * eta
     rho = min(r1 + rp[RA_GPP] * bp + rp[RA_GPV] * bv, r2)
     sig = min(s1 + rp[RA_GVP] * bp + rp[RA_GVV] * bv, s2)
     return rho, sig, r1, s1, r2, s2, True
+
+
+@nb.njit(cache=True, error_model="numpy", inline="always")
+def l1_floor(lam: float, j: int, c_forcing: float, l_forcing: float) -> float:
+    """The bound at sample j of a loop's response to a forcing bounded by a constant from sample 0
+    on: the lam-weighted recursion's (1 - lam^j) / (1 - lam) C F or the l1 norm's L F (the whole
+    sum, >= its first j terms), the smaller."""
+    return min(l_forcing, (1.0 - lam ** j) / (1.0 - lam) * c_forcing)
+
+
+@nb.njit(cache=True, error_model="numpy", inline="always")
+def floor_forcings(rp: NDArray, ts: float) -> tuple[float, float, float, float, float, float, float, float,
+                                                    float, float, float, float]:
+    """The constant part of the ancillary tube's forcing (:func:`l1_floor_step`): the navigation
+    error's change factor k (its change bound is k b + the range's part), the floors b_p0 (km),
+    b_v0 (km/s) and d_max (km/s^2), then the bounds C F and L F of their responses, per sample and
+    summed, for recursion 1 (position, velocity: c1p, c1v, l1p, l1v; forcing k (b_p0, b_v0) and
+    d_max through D and C_e) and recursion 2 (c2p, c2v, l2p, l2v; (b_p0, b_v0) and d_max through C_n
+    and C_e)."""
+    k = min(2.0, rp[R_NRATE] * ts)
+    p0, v0, d0 = rp[R_NPF], rp[R_NVF], rp[R_DMAX]
+    c1p = rp[RA_DPP] * k * p0 + rp[RA_DPV] * k * v0 + rp[RA_CPE] * d0
+    c1v = rp[RA_DVP] * k * p0 + rp[RA_DVV] * k * v0 + rp[RA_CVE] * d0
+    l1p = rp[RLA_DPP] * k * p0 + rp[RLA_DPV] * k * v0 + rp[RLA_CPE] * d0
+    l1v = rp[RLA_DVP] * k * p0 + rp[RLA_DVV] * k * v0 + rp[RLA_CVE] * d0
+    c2p = rp[RA_CNPP] * p0 + rp[RA_CNPV] * v0 + rp[RA_CPE] * d0
+    c2v = rp[RA_CNVP] * p0 + rp[RA_CNVV] * v0 + rp[RA_CVE] * d0
+    l2p = rp[RLA_CNPP] * p0 + rp[RLA_CNPV] * v0 + rp[RLA_CPE] * d0
+    l2v = rp[RLA_CNVP] * p0 + rp[RLA_CNVV] * v0 + rp[RLA_CVE] * d0
+    return k, p0, v0, d0, c1p, c1v, l1p, l1v, c2p, c2v, l2p, l2v
+
+
+@nb.njit(cache=True, error_model="numpy")
+def l1_floor_step(rp: NDArray, ts: float, lam: float, j: int, r1: float, s1: float, r2: float, s2: float,
+                  bp: float, bv: float, dp: float, dv: float, eta: float, b0p: float, b0v: float
+                  ) -> tuple[float, float, float, float]:
+    """The ancillary tube's recursions from sample j to j + 1 under ``tsg.ancillary_bound`` l1
+    (docs/robustness.md, "The l1 bound"). The forcing's bound is split into its constant part
+    (the navigation floors b_p0, b_v0 and their change bound k b_0, the disturbance d_max) and the
+    rest (range and command terms); the error is linear in the forcing, so its bound is the sum of
+    the two responses' bounds. The rest drives the lam-weighted recursion as before; the constant
+    part's response at sample j is bounded by :func:`l1_floor` F_j. The R carry both: R_(j+1) =
+    lam R_j + C F_rest + (F_(j+1) - lam F_j), which is lam R_j + C F_const until the l1 bound is
+    the smaller, so R_j - F_j follows the rest's recursion. The initial errors' responses are
+    taken apart the same way: their envelope T_j (:func:`transient_bound`, exact per power where
+    C0 lam^j is loose), so R_j = V_j + F_j + T_j with V_j the forcing's rest from V_0 = 0."""
+    k, p0, v0, d0, c1p, c1v, l1p, l1v, c2p, c2v, l2p, l2v = floor_forcings(rp, ts)
+    dp_, dv_, bp_, bv_, eta_ = dp - k * p0, dv - k * v0, bp - p0, bv - v0, eta - d0
+    z1p, z1v, z2p, z2v = start_transients(rp, b0p, b0v)
+    t1p, t1v = transient_bound(rp, j, z1p, z1v)
+    u1p, u1v = transient_bound(rp, j + 1, z1p, z1v)
+    t2p, t2v = transient_bound(rp, j, z2p, z2v)
+    u2p, u2v = transient_bound(rp, j + 1, z2p, z2v)
+    r1 = (lam * r1 + rp[RA_DPP] * dp_ + rp[RA_DPV] * dv_ + rp[RA_CPE] * eta_
+          + l1_floor(lam, j + 1, c1p, l1p) - lam * l1_floor(lam, j, c1p, l1p) + u1p - lam * t1p)
+    s1 = (lam * s1 + rp[RA_DVP] * dp_ + rp[RA_DVV] * dv_ + rp[RA_CVE] * eta_
+          + l1_floor(lam, j + 1, c1v, l1v) - lam * l1_floor(lam, j, c1v, l1v) + u1v - lam * t1v)
+    r2 = (lam * r2 + rp[RA_CNPP] * bp_ + rp[RA_CNPV] * bv_ + rp[RA_CPE] * eta_
+          + l1_floor(lam, j + 1, c2p, l2p) - lam * l1_floor(lam, j, c2p, l2p) + u2p - lam * t2p)
+    s2 = (lam * s2 + rp[RA_CNVP] * bp_ + rp[RA_CNVV] * bv_ + rp[RA_CVE] * eta_
+          + l1_floor(lam, j + 1, c2v, l2v) - lam * l1_floor(lam, j, c2v, l2v) + u2v - lam * t2v)
+    return r1, s1, r2, s2
+
+
+@nb.njit(cache=True, error_model="numpy", inline="always")
+def l1_fixed_point(r0: float, c_inf: float, l_inf: float) -> float:
+    """The sup over m of a bound lam^m R_0 + min((1 - lam^m) R_inf, L F) (the handed-over
+    transient, then the lam-weighted fixed point R_inf = C F / (1 - lam) or the l1 norm's L F,
+    the smaller at each m): R_0 + q max(R_inf - R_0, 0), q = min(1, L F / R_inf) (the sup of a
+    piecewise-linear function of lam^m, at lam^m = 1 - q). max(R_0, R_inf) when q = 1."""
+    q = min(1.0, l_inf / c_inf) if c_inf > 0.0 else 1.0
+    return r0 + q * max(c_inf - r0, 0.0)
 
 
 @nb.njit(cache=True, error_model="numpy")
@@ -650,7 +802,9 @@ HANDOFF_FTRE, HANDOFF_TRACK = 1.0, 2.0
 
 @nb.njit(cache=True, error_model="numpy")
 def ancillary_terminal_ok(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, dp: float, dv: float,
-                          rho: float, sig: float, ts: float) -> tuple[bool, float, float, float]:
+                          rho: float, sig: float, ts: float, r1: float = 0.0, s1: float = 0.0, r2: float = 0.0,
+                          s2: float = 0.0, j: int = 0, b0p: float = 0.0, b0v: float = 0.0
+                          ) -> tuple[bool, float, float, float]:
     """The robust terminal test of the ancillary tube: (ok, ball radii, handoff). From the
     terminal sample on the plan is done and the truth, within (rho, sigma) of the prediction
     there, which is within (dp, dv) of the virtual target x_v, is handed to one of two loops:
@@ -661,11 +815,17 @@ def ancillary_terminal_ok(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, dp
     - else the tracking law holding x_v, u = -K_a (x_hat - x_v) (:data:`HANDOFF_TRACK`;
       :func:`ancillary_track_handoff`), the loop the plan was tracked with, which does not
       saturate on a ball of kilometres: far from the chief, where the FTRE loop would.
+
+    Under ``tsg.ancillary_bound`` l1 the tracking handoff continues the plan's recursions (r1, s1,
+    r2, s2 at sample j: :func:`ancillary_track_continued`).
     """
     ok, ball_p, ball_v = ancillary_ftre_handoff(xv, xc, cp, rp, dp, dv, rho, sig, ts)
     if ok:
         return True, ball_p, ball_v, HANDOFF_FTRE
-    ok, ball_p, ball_v = ancillary_track_handoff(xv, xc, cp, rp, dp, dv, rho, sig, ts)
+    if rp[R_L1] != 0.0:
+        ok, ball_p, ball_v = ancillary_track_continued(xv, xc, cp, rp, dp, dv, r1, s1, r2, s2, j, b0p, b0v, ts)
+    else:
+        ok, ball_p, ball_v = ancillary_track_handoff(xv, xc, cp, rp, dp, dv, rho, sig, ts)
     return ok, ball_p, ball_v, HANDOFF_TRACK
 
 
@@ -693,6 +853,23 @@ def ancillary_ftre_handoff(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, d
     return True, ball_p, ball_v
 
 
+@nb.njit(cache=True, error_model="numpy", inline="always")
+def track_ball_ok(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, rng: float, vel: float, ball_p: float,
+                  ball_v: float, ts: float) -> tuple[bool, float, float]:
+    """The tracking handoff's ball (ball_p km, ball_v km/s about x_v, at range rng and relative
+    speed vel): the command |K_a,p| (ball_p + b_p) + |K_a,v| (ball_v + b_v) below u_max (the law
+    never saturates, so the linear error system holds), h1 and h3 on the ball, and between
+    samples when ``tsg.ancillary_between``."""
+    bp, bv, _, _ = nav_terms(rp, rng + ball_p, vel + ball_v, ts)
+    u_bound = rp[RA_KP] * (ball_p + bp) + rp[RA_KV] * (ball_v + bv)
+    if u_bound >= cp[C_UMAX]:
+        return False, 0.0, 0.0
+    ok = robust_h1_ok(xv, xc, cp, rp[R_SINA], ball_p) and robust_h3_ok(xv, xc, cp, ball_p, ball_v)
+    if ok and rp[R_BETWEEN] != 0.0:
+        ok = ball_between_ok(xv, xc, cp, rp, ball_p, ball_v, u_bound, ts)
+    return ok, ball_p, ball_v
+
+
 @nb.njit(cache=True, error_model="numpy")
 def ancillary_track_handoff(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, dp: float, dv: float,
                             rho: float, sig: float, ts: float) -> tuple[bool, float, float]:
@@ -718,22 +895,79 @@ def ancillary_track_handoff(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, 
         bp, bv, _, _ = nav_terms(rp, rng + ball_p, vel + ball_v, ts)
         un = rp[RA_KP] * (ball_p + bp) + rp[RA_KV] * (ball_v + bv)
         eta = rp[R_EPSU] * un + rp[R_DMAX] + rp[R_KG] * (rng + ball_p)
-        new_p = max(r0, gain * (rp[RA_CNPP] * bp + rp[RA_CNPV] * bv + rp[RA_CPE] * eta))
-        new_v = max(s0, gain * (rp[RA_CNVP] * bp + rp[RA_CNVV] * bv + rp[RA_CVE] * eta))
+        inf_p = gain * (rp[RA_CNPP] * bp + rp[RA_CNPV] * bv + rp[RA_CPE] * eta)
+        inf_v = gain * (rp[RA_CNVP] * bp + rp[RA_CNVV] * bv + rp[RA_CVE] * eta)
+        if rp[R_L1] != 0.0:  # the l1 norm's bound of the same forcing (docs/robustness.md, "The l1 bound")
+            new_p = l1_fixed_point(r0, inf_p, rp[RLA_CNPP] * bp + rp[RLA_CNPV] * bv + rp[RLA_CPE] * eta)
+            new_v = l1_fixed_point(s0, inf_v, rp[RLA_CNVP] * bp + rp[RLA_CNVV] * bv + rp[RLA_CVE] * eta)
+        else:
+            new_p, new_v = max(r0, inf_p), max(s0, inf_v)
         settled = new_p - ball_p <= 1e-12 and new_v - ball_v <= 1e-15
         ball_p, ball_v = new_p, new_v
         if settled:
             break
     else:
         return False, 0.0, 0.0  # no fixed point: the navigation error grows faster than the ball
-    bp, bv, _, _ = nav_terms(rp, rng + ball_p, vel + ball_v, ts)
-    u_bound = rp[RA_KP] * (ball_p + bp) + rp[RA_KV] * (ball_v + bv)
-    if u_bound >= cp[C_UMAX]:
-        return False, 0.0, 0.0
-    ok = robust_h1_ok(xv, xc, cp, rp[R_SINA], ball_p) and robust_h3_ok(xv, xc, cp, ball_p, ball_v)
-    if ok and rp[R_BETWEEN] != 0.0:
-        ok = ball_between_ok(xv, xc, cp, rp, ball_p, ball_v, u_bound, ts)
-    return ok, ball_p, ball_v
+    return track_ball_ok(xv, xc, cp, rp, rng, vel, ball_p, ball_v, ts)
+
+
+@nb.njit(cache=True, error_model="numpy")
+def ancillary_track_continued(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, dp: float, dv: float,
+                              r1: float, s1: float, r2: float, s2: float, j: int, b0p: float, b0v: float,
+                              ts: float) -> tuple[bool, float, float]:
+    """The handoff to the tracking law holding x_v under ``tsg.ancillary_bound`` l1
+    (docs/robustness.md, "The l1 bound"). That law is the loop the plan was tracked with, and x_v
+    flies the truth's gravity with no command, so e = x - x_v = (x - x_p) + (x_p - x_v) obeys the
+    plan's error system with u_p = 0 from the terminal sample j on: the plan's recursions go on
+    from their states there (R1, S1, R2, S2: C-weighted, no re-weighting by C0), and the loop's
+    response to the offset x_p - x_v (|.| <= dp, dv) adds lam^m C0 (dp, dv). Each recursion's
+    state is its constant part's bound F_j (:func:`l1_floor`) plus the rest V_j, which goes from
+    V_j toward its fixed point V_inf (the rest of the forcing at the ball's largest range, over
+    1 - lam); the constant part stays below L F. So |e_p| <= C0 (dp, dv) + min(max(V1, V1_inf) +
+    L F1 + G b, max(V2, V2_inf) + L F2), the same in velocity, with b at the ball's own range (the
+    fixed point, 1 nm). The command |K_a,p| (ball_p + b_p) + |K_a,v| (ball_v + b_v) must stay below
+    u_max, and the ball must satisfy h1, h3 and the between-samples check, as
+    :func:`ancillary_track_handoff`."""
+    rng = math.sqrt((xv[0] - xc[0]) ** 2 + (xv[1] - xc[1]) ** 2 + (xv[2] - xc[2]) ** 2)
+    vel = math.sqrt((xv[3] - xc[3]) ** 2 + (xv[4] - xc[4]) ** 2 + (xv[5] - xc[5]) ** 2)
+    lam = rp[RA_LAM]
+    gain = 1.0 / (1.0 - lam)
+    k, p0, v0, d0, c1p, c1v, l1p, l1v, c2p, c2v, l2p, l2v = floor_forcings(rp, ts)
+    # the rests' states at j (less the constant parts' and the initial transients' bounds there),
+    # and the sups over all later samples of the constant parts (L F) and of the transients
+    z1p, z1v, z2p, z2v = start_transients(rp, b0p, b0v)
+    t1p, t1v = transient_bound(rp, j, z1p, z1v)
+    t2p, t2v = transient_bound(rp, j, z2p, z2v)
+    v1p, v1v = r1 - l1_floor(lam, j, c1p, l1p) - t1p, s1 - l1_floor(lam, j, c1v, l1v) - t1v
+    v2p, v2v = r2 - l1_floor(lam, j, c2p, l2p) - t2p, s2 - l1_floor(lam, j, c2v, l2v) - t2v
+    for m in range(j + 1, max(j + 1, N_ENV + 1)):
+        a1p, a1v = transient_bound(rp, m, z1p, z1v)
+        a2p, a2v = transient_bound(rp, m, z2p, z2v)
+        t1p, t1v, t2p, t2v = max(t1p, a1p), max(t1v, a1v), max(t2p, a2p), max(t2v, a2v)
+    f1p, f1v = min(l1p, gain * c1p) + t1p, min(l1v, gain * c1v) + t1v
+    f2p, f2v = min(l2p, gain * c2p) + t2p, min(l2v, gain * c2v) + t2v
+    off_p = rp[RA_C0PP] * dp + rp[RA_C0PV] * dv
+    off_v = rp[RA_C0VP] * dp + rp[RA_C0VV] * dv
+    eta_rest = rp[R_KG] * rng  # u_p = 0: no thruster error outside the loop's M; d_max is constant
+    ball_p, ball_v = off_p + min(max(v1p, 0.0) + f1p, max(v2p, 0.0) + f2p), \
+        off_v + min(max(v1v, 0.0) + f1v, max(v2v, 0.0) + f2v)
+    for _ in range(100):  # the ball enters its own range and speed bounds: to the fixed point
+        rr = rng + ball_p
+        bp, bv, d_p, d_v = nav_terms(rp, rr, vel + ball_v, ts)
+        eta_rest = rp[R_KG] * rr
+        i1p = gain * (rp[RA_DPP] * (d_p - k * p0) + rp[RA_DPV] * (d_v - k * v0) + rp[RA_CPE] * eta_rest)
+        i1v = gain * (rp[RA_DVP] * (d_p - k * p0) + rp[RA_DVV] * (d_v - k * v0) + rp[RA_CVE] * eta_rest)
+        i2p = gain * (rp[RA_CNPP] * (bp - p0) + rp[RA_CNPV] * (bv - v0) + rp[RA_CPE] * eta_rest)
+        i2v = gain * (rp[RA_CNVP] * (bp - p0) + rp[RA_CNVV] * (bv - v0) + rp[RA_CVE] * eta_rest)
+        new_p = off_p + min(max(v1p, i1p) + f1p + rp[RA_GPP] * bp + rp[RA_GPV] * bv, max(v2p, i2p) + f2p)
+        new_v = off_v + min(max(v1v, i1v) + f1v + rp[RA_GVP] * bp + rp[RA_GVV] * bv, max(v2v, i2v) + f2v)
+        settled = new_p - ball_p <= 1e-12 and new_v - ball_v <= 1e-15
+        ball_p, ball_v = max(ball_p, new_p), max(ball_v, new_v)
+        if settled:
+            break
+    else:
+        return False, 0.0, 0.0  # no fixed point: the navigation error grows faster than the ball
+    return track_ball_ok(xv, xc, cp, rp, rng, vel, ball_p, ball_v, ts)
 
 
 # -- between samples (``tsg.ancillary_between``; docs/robustness.md, "Between samples, derived") --

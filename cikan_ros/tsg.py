@@ -164,6 +164,7 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
     ancillary = rp[R_TUBE] != 0.0
     u_pred = rp[R_GAMMA] * u_max if ancillary else u_max  # the prediction's thrust limit
     r2 = s2 = 0.0  # the ancillary tube's second recursion
+    b0p = b0v = 0.0
     between = ancillary and rp[R_BETWEEN] != 0.0
     # the previous sample for the between-samples check: cone and apex excess, range, largest
     # speed, rho, then its interval's acceleration bound and the cone's turn rates
@@ -188,6 +189,7 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
             rng = math.sqrt((x[0] - xc[0]) ** 2 + (x[1] - xc[1]) ** 2 + (x[2] - xc[2]) ** 2)
             if j == 0 and ancillary:
                 rho, sig, big_r, big_s, r2, s2 = ancillary_start(rp, rng)
+                b0p, b0v = rho, sig  # the navigation bounds at sample 0 (the l1 bound's transients)
             elif j == 0:  # the measured state
                 rho, sig, big_r, big_s = tube_start(rp, rng)
             if trace.shape[0] > 0:
@@ -236,7 +238,8 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
                 return True
             if ancillary:
                 ok, ball_p, ball_v, handoff = ancillary_terminal_ok(xv, xc, cp, rp, math.sqrt(dp2),
-                                                                    math.sqrt(dv2), rho, sig, ts)
+                                                                    math.sqrt(dv2), rho, sig, ts,
+                                                                    big_r, big_s, r2, s2, j, b0p, b0v)
             else:
                 ok, ball_p, ball_v = robust_terminal_ok(xv, xc, cp, rp, math.sqrt(dp2), math.sqrt(dv2),
                                                         big_r, big_s, linear, ts)
@@ -265,7 +268,7 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
             prev[6], prev[7] = frame_rates(xc, rp, ts)
         if ancillary:
             rho, sig, big_r, big_s, r2, s2, ok = ancillary_step(rp, u_max, ts, x, xc, u, rng, rho, sig,
-                                                                big_r, big_s, r2, s2)
+                                                                big_r, big_s, r2, s2, j, b0p, b0v)
             if not ok:
                 return False
         elif robust:  # the tube at sample j + 1 (cikan_ros.robust, docs/robustness.md)

@@ -19,7 +19,8 @@ from cikan_ros.dynamics import linearisation
 from cikan_ros.errors import ConfigError
 from cikan_ros.orbit import elements_to_state
 from cikan_ros.robust import (HANDOFF_FTRE, HANDOFF_TRACK, ancillary_ftre_handoff, ancillary_start, ancillary_step,
-                              ancillary_track_handoff, terminal_ball_after, thrust_matrices)
+                              ancillary_track_continued, ancillary_track_handoff, terminal_ball_after,
+                              thrust_matrices)
 from cikan_ros.tsg import Predictor
 from ros_helpers import ros_env, rosbags_messages, sim_steps, states, tau_history  # noqa: F401 (fixture)
 
@@ -27,6 +28,9 @@ from ros_helpers import ros_env, rosbags_messages, sim_steps, states, tau_histor
 #: tube").
 CFG = load_config(**{**truth_overrides("realistic"), "tsg.robust": True, "tsg.tube": "ancillary"})
 PRED = Predictor.from_config(CFG)
+#: The same under the l1 bound (tsg.ancillary_bound l1; docs/robustness.md, "The l1 bound").
+PRED_L1 = Predictor.from_config(CFG.replace(**{"tsg.ancillary_bound": "l1"}))
+BOUNDS = {"geometric": PRED, "l1": PRED_L1}
 
 
 def ball_draw(rng: np.random.Generator, radius: float) -> np.ndarray:
@@ -47,16 +51,16 @@ def tracking_loop(nu: float, which: int) -> tuple[np.ndarray, ...]:
     return thrust_matrices(bias, point)[which], chief, a_d, b_d, k_a
 
 
-@settings(max_examples=12, deadline=None)
-@given(seed=st.integers(0, 2**31), nu=st.floats(0.0, 2 * math.pi),
-       which=st.integers(0, len(thrust_matrices(0.02, math.radians(1.0))) - 1),
-       rng_km=st.floats(0.05, 60.0))
-def test_the_ancillary_tube_bounds_the_tracking_error_and_keeps_headroom(seed, nu, which, rng_km):
-    """e' = Phi_M e - B M K_a delta + B [(M - I) u_p + d] (Phi_M = A - B M K_a), e_0 = -delta_0,
-    with the navigation error inside its bound at the range and moving by at most its declared
-    rate, |u_p| = gamma u_max in random directions, |d| <= d_max: wherever ancillary_step grants
-    headroom the truth's command u_p - K_a (e + delta) is within u_max, and |e_p| <= rho,
-    |e_v| <= sigma at every sample."""
+def fly_plan(pred: Predictor, seed: int, nu: float, which: int, rng_km: float, steps: int, hold_nav: bool = False,
+             u_frac: float = 1.0) -> tuple[np.ndarray, ...] | None:
+    """The truth tracking a prediction at rest rng_km from the chief (it tracks the prediction, so
+    its error is that of the loop, wherever the prediction is) for ``steps`` samples of
+    ancillary_step, checked at each: e' = Phi_M e - B M K_a delta + B [(M - I) u_p + d], e_0 =
+    -delta_0, |u_p| = u_frac gamma u_max in random directions, |d| <= d_max, the navigation error
+    inside its bound at the range and moving by at most its declared rate (``hold_nav``: held at
+    its first draw, scaled onto the bound's surface: a lasting offset, the worst for the l1
+    bound's constant part). Returns (e, the recursions' states, b0) after the last step, or None
+    when headroom ran out."""
     truth, u_max = CFG.truth, CFG.control.u_max_kmps2
     m, chief, a_d, b_d, k_a = tracking_loop(nu, which)
     rng = np.random.default_rng(seed)
@@ -67,28 +71,85 @@ def test_the_ancillary_tube_bounds_the_tracking_error_and_keeps_headroom(seed, n
     bv = truth.bound("nav_vel_floor_kmps") + truth.bound("nav_vel_range_fraction_per_s") * rng_km
     step = truth.nav_rate_per_s * CFG.control.period_s
     delta = np.concatenate([ball_draw(rng, bp), ball_draw(rng, bv)])
+    if hold_nav:
+        delta[:3] *= bp / np.linalg.norm(delta[:3])
+        delta[3:] *= bv / np.linalg.norm(delta[3:])
     e = -delta
-    rho, sig, r1, s1, r2, s2 = ancillary_start(PRED.rparams, rng_km)
-    for _ in range(200):
+    rho, sig, r1, s1, r2, s2 = ancillary_start(pred.rparams, rng_km)
+    b0p, b0v = rho, sig
+    for j in range(steps):
         u_p = rng.normal(size=3)
-        u_p *= CFG.tsg.ancillary_gamma * u_max / np.linalg.norm(u_p)
-        rho, sig, r1, s1, r2, s2, ok = ancillary_step(PRED.rparams, u_max, CFG.control.period_s, x, chief,
-                                                      u_p, rng_km, rho, sig, r1, s1, r2, s2)
+        u_p *= u_frac * CFG.tsg.ancillary_gamma * u_max / np.linalg.norm(u_p)
+        rho, sig, r1, s1, r2, s2, ok = ancillary_step(pred.rparams, u_max, CFG.control.period_s, x, chief,
+                                                      u_p, rng_km, rho, sig, r1, s1, r2, s2, j, b0p, b0v)
         if not ok:
-            break
+            return None
         u = u_p - k_a @ (e + delta)
         assert np.linalg.norm(u) <= u_max
         d = ball_draw(rng, truth.bound("disturbance_max_kmps2"))
         e = a_d @ e + b_d @ (m @ u - u_p + d)
-        # the navigation error moves by at most its rate, inside its ball
-        nxt = delta + np.concatenate([ball_draw(rng, step * bp), ball_draw(rng, step * bv)])
-        for sl, b in ((slice(0, 3), bp), (slice(3, 6), bv)):
-            n = np.linalg.norm(nxt[sl])
-            if n > b:
-                nxt[sl] *= b / n
-        delta = nxt
+        if not hold_nav:  # the navigation error moves by at most its rate, inside its ball
+            nxt = delta + np.concatenate([ball_draw(rng, step * bp), ball_draw(rng, step * bv)])
+            for sl, b in ((slice(0, 3), bp), (slice(3, 6), bv)):
+                n = np.linalg.norm(nxt[sl])
+                if n > b:
+                    nxt[sl] *= b / n
+            delta = nxt
         assert np.linalg.norm(e[:3]) <= rho
         assert np.linalg.norm(e[3:]) <= sig
+    return e, np.array([r1, s1, r2, s2]), np.array([b0p, b0v])
+
+
+@pytest.mark.parametrize("bound", BOUNDS)
+@settings(max_examples=12, deadline=None)
+@given(seed=st.integers(0, 2**31), nu=st.floats(0.0, 2 * math.pi),
+       which=st.integers(0, len(thrust_matrices(0.02, math.radians(1.0))) - 1),
+       rng_km=st.floats(0.05, 60.0), hold_nav=st.booleans())
+def test_the_ancillary_tube_bounds_the_tracking_error_and_keeps_headroom(bound, seed, nu, which, rng_km, hold_nav):
+    """Wherever ancillary_step grants headroom the truth's command u_p - K_a (e + delta) is within
+    u_max, and |e_p| <= rho, |e_v| <= sigma at every sample (:func:`fly_plan`), under either bound."""
+    fly_plan(BOUNDS[bound], seed, nu, which, rng_km, 200, hold_nav)
+
+
+@settings(max_examples=12, deadline=None)
+@given(seed=st.integers(0, 2**31), nu=st.floats(0.0, 2 * math.pi),
+       which=st.integers(0, len(thrust_matrices(0.02, math.radians(1.0))) - 1),
+       rng_km=st.floats(0.0005, 5.0), steps=st.integers(1, 80), hold_nav=st.booleans(),
+       u_frac=st.floats(0.0, 0.02))
+def test_the_continued_tracking_handoff_bounds_the_error(seed, nu, which, rng_km, steps, hold_nav, u_frac):
+    """Under the l1 bound the tracking handoff continues the plan's recursions: after ``steps``
+    samples of a plan the truth holds x_v (the prediction there, offset by up to the nominal terminal
+    set) with u = -K_a (x_hat - x_v), e = x - x_v obeying e' = Phi_M e - B M K_a delta + B d; wherever
+    ancillary_track_continued accepts, the command stays within u_max and |e_p| <= ball_p,
+    |e_v| <= ball_v for 300 samples, with the navigation error anywhere in its ball at every sample
+    or held at its plan's value."""
+    truth, u_max = CFG.truth, CFG.control.u_max_kmps2
+    flown = fly_plan(PRED_L1, seed, nu, which, rng_km, steps, hold_nav, u_frac)  # a plan's last approach
+    if flown is None:
+        return
+    e, (r1, s1, r2, s2), (b0p, b0v) = flown
+    m, chief, a_d, b_d, k_a = tracking_loop(nu, which)
+    rng = np.random.default_rng(seed + 1)
+    dp, dv = 1e-3 * rng.uniform(), 1e-4 * rng.uniform()  # the prediction's offset from x_v
+    x_v = chief.copy()  # on the cone's axis behind the chief, moving with it
+    x_v[:3] -= chief[3:] / np.linalg.norm(chief[3:]) * rng_km
+    ok, ball_p, ball_v = ancillary_track_continued(x_v, chief, PRED_L1.cparams, PRED_L1.rparams, dp, dv, r1, s1,
+                                                   r2, s2, steps, b0p, b0v, CFG.control.period_s)
+    if not ok:
+        return
+    e = e + np.concatenate([ball_draw(rng, dp), ball_draw(rng, dv)])
+    delta = None
+    for _ in range(300):
+        r = rng_km + ball_p
+        bp = truth.bound("nav_pos_floor_km") + truth.bound("nav_pos_range_fraction") * r
+        bv = truth.bound("nav_vel_floor_kmps") + truth.bound("nav_vel_range_fraction_per_s") * r
+        if delta is None or not hold_nav:
+            delta = np.concatenate([ball_draw(rng, bp), ball_draw(rng, bv)])
+        u = -k_a @ (e + delta)
+        assert np.linalg.norm(u) <= u_max
+        e = a_d @ e + b_d @ (m @ u + ball_draw(rng, truth.bound("disturbance_max_kmps2")))
+        assert np.linalg.norm(e[:3]) <= ball_p
+        assert np.linalg.norm(e[3:]) <= ball_v
 
 
 @settings(max_examples=12, deadline=None)
@@ -382,6 +443,21 @@ def test_a_model_of_one_gain_is_refused_under_a_gain_schedule():
     assert "tsg.ancillary_bands_km" not in label_config(CFG.flat())
     assert label_mismatch(card, CFG.flat()) is None
     assert "tsg.ancillary_bands_km" in label_mismatch(card, _banded(1.0, 1e11).flat())
+
+
+def test_a_model_of_the_geometric_bound_is_refused_under_the_l1_bound():
+    """The l1 bound accepts shifts the geometric one refuses, so its labels differ: the card's
+    label configuration names the bound only when it is not the geometric one, and the mismatch
+    names it; a bad value is named."""
+    from cikan_ros.learn.modelfile import label_config, label_mismatch
+
+    card = {"config": CFG.flat()}
+    l1 = PRED_L1.config.flat()
+    assert "tsg.ancillary_bound" not in label_config(CFG.flat())
+    assert "tsg.ancillary_bound" in label_mismatch(card, l1)
+    assert label_mismatch({"config": l1}, l1) is None
+    with pytest.raises(ConfigError, match="tsg.ancillary_bound"):
+        load_config(**{"tsg.ancillary_bound": "tight"})
 
 
 def test_cikan_tube_lists_each_gain_band_of_a_scenario():

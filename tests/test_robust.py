@@ -81,6 +81,50 @@ def test_tube_recursion_bounds_the_linear_error_system(seed, nu, which):
         assert np.linalg.norm(e[3:]) <= big_s + c["gvp"] * bp + c["gvv"] * bv
 
 
+def test_the_l1_norms_are_the_impulse_responses_summed():
+    """L_XY = sum_m |X Phi_M^m Y|_2 (tsg.ancillary_bound l1): at every analysed anomaly and thruster
+    map, the blocks' spectral norms by numpy's SVD summed over the powers, the worst over the maps,
+    then the sup over the orbit with the grid's term, as every constant (GEO's handoff loop, lam =
+    0.52: 200 powers leave < 1e-50). Each is at most C / (1 - lam) (|X Phi^m Y| <= C lam^m); the
+    response to a lasting navigation offset at least its DC gain |G| (the sum's norm <= the sum of
+    norms); the transient envelope equals |X Phi^m Y| per power, I at m = 0."""
+    from cikan_ros.config import handoff_control_config, scenario_overrides
+    from cikan_ros.robust import ANALYSIS_STEP_DEG, N_ENV, _with_grid_term, closed_loops, frozen_loops
+
+    cfg = load_config(**{**scenario_overrides("geo"), **truth_overrides("realistic"), "tsg.robust": True})
+    orbit = KeplerOrbit.from_config(cfg.orbit)
+    ctl = handoff_control_config(cfg)
+    bias, point = cfg.truth.bound("thrust_bias_max"), math.radians(cfg.truth.bound("thrust_pointing_max_deg"))
+    c = tube_constants(orbit, ctl, bias, point)
+    maps = thrust_matrices(bias, point)
+    _, b_all, _ = frozen_loops(orbit, ctl)
+    cells = slice(0, len(b_all), max(1, round(ANALYSIS_STEP_DEG / ctl.grid_deg)))
+    phi, bmk = closed_loops(orbit, ctl, maps, cells)  # (anomalies, maps, 6, 6)
+    b_d = np.broadcast_to(b_all[cells][:, None], (*phi.shape[:2], 6, 3))
+    blocks = {"p": slice(0, 3), "v": slice(3, 6)}
+    sums = {k: np.zeros(phi.shape[:2]) for k in ("cnpp", "cnpv", "cnvp", "cnvv", "cpe", "cve")}
+    env = {k: [] for k in ("pp", "pv", "vp", "vv")}
+    power = np.broadcast_to(np.eye(6), phi.shape).copy()
+    for m in range(200):
+        for r, rs in blocks.items():
+            for col, cs in blocks.items():
+                sums[f"cn{r}{col}"] += np.linalg.norm((power @ bmk)[..., rs, cs], 2, axis=(-2, -1))
+                if m < N_ENV:
+                    env[r + col].append(_with_grid_term(np.linalg.norm(power[..., rs, cs], 2, axis=(-2, -1)).max(axis=1)))
+            sums[f"c{r}e"] += np.linalg.norm((power @ b_d)[..., rs, :], 2, axis=(-2, -1))
+        power = phi @ power
+    lam = c["lam"]
+    for k, total in sums.items():
+        assert c[f"l{k}"] == pytest.approx(_with_grid_term(total.max(axis=1)), rel=1e-6), k
+        assert c[f"l{k}"] <= c[k] / (1.0 - lam) * (1.0 + 1e-9), k
+    for block in ("pp", "pv", "vp", "vv"):
+        assert c[f"lcn{block}"] >= c[f"g{block}"] * (1.0 - 1e-6)
+        ref = np.minimum(env[block], c[f"c0{block}"] * lam ** np.arange(N_ENV))
+        np.testing.assert_allclose(c[f"env{block}"], ref, rtol=1e-6, atol=1e-12)
+    assert c["envpp"][0] == pytest.approx(1.0) and c["envpv"][0] == pytest.approx(0.0, abs=1e-12)
+    assert c["lcnvv"] / (c["cnvv"] / (1.0 - lam)) < 0.6  # what the bound buys here (measured 0.52)
+
+
 @settings(max_examples=20, deadline=None)
 @given(seed=st.integers(0, 2**31), nu=st.floats(0.0, 2.0 * math.pi),
        which=st.integers(0, len(thrust_matrices(0.02, math.radians(1.0))) - 1))

@@ -34,8 +34,10 @@ def run(args: argparse.Namespace) -> int:
     control = control_config(cfg)
     out: dict[str, object] = {"r_diag": list(control.r_diag), "gain_margin": gain_margin(orbit, control)}
     try:
-        out.update(tube_constants(orbit, control, truth.bound("thrust_bias_max"),
-                                  math.radians(truth.bound("thrust_pointing_max_deg"))))
+        # the scalar constants (the transient envelopes, per power, stay in the library)
+        out.update({k: v for k, v in tube_constants(orbit, control, truth.bound("thrust_bias_max"),
+                                                    math.radians(truth.bound("thrust_pointing_max_deg"))).items()
+                    if not k.startswith("env")})
     except UnstableLoopError as exc:
         out["unstable"] = str(exc)
     if cfg.tsg.robust and cfg.tsg.tube == "ancillary":

@@ -174,6 +174,9 @@ def label_config(flat: Mapping[str, Any]) -> dict[str, Any]:
             # the gain schedule by range (named only when set: configurations before it had one gain)
             if flat.get("tsg.ancillary_bands_km"):
                 out.update({k: flat.get(k) for k in ("tsg.ancillary_bands_km", "tsg.ancillary_bands_r")})
+            # the l1 bound (named only when set: configurations before it had the geometric one)
+            if flat.get("tsg.ancillary_bound", "geometric") != "geometric":
+                out["tsg.ancillary_bound"] = flat["tsg.ancillary_bound"]
     return out
 
 
