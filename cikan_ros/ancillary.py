@@ -83,7 +83,8 @@ def terminal_balls(predictor: Predictor, row: NDArray, n: int, band: int = 0) ->
     :func:`~cikan_ros.robust.terminal_ball_after`)."""
     out = np.empty((n + 1, 2))
     terminal_ball_after(row[:6], row[12:18], predictor.band_params(band), row[18], row[19], row[20], row[21],
-                        row[6], row[7], row[8], predictor.config.control.period_s, n, out)
+                        row[6], row[7], row[8], predictor.config.control.period_s, n, out,
+                        row[22], row[23], row[24], row[25], int(row[26]), row[27], row[28])
     return out
 
 

@@ -79,7 +79,11 @@ L1_KEYS = tuple(f"l{c}{row}{col}" for c in ("d", "cn") for row in "pv" for col i
 #: RA_ENV); beyond, C0 lam^m (:func:`transient_bound`).
 N_ENV = 64
 RA_ENV = RLA_CVE + 1
-N_RPARAMS = RA_ENV + 4 * N_ENV
+#: Under the l1 bound, the docking test (mission.dock_distance_km, mission.dock_speed_kmps) a
+#: shift of 0 must be certified to reach (:func:`ancillary_docks`).
+R_DOCK_P = RA_ENV + 4 * N_ENV
+R_DOCK_V = R_DOCK_P + 1
+N_RPARAMS = R_DOCK_V + 1
 
 #: Powers of the closed-loop matrix scanned for the constants C: at least this many, and at least
 #: POWER_SPAN / (1 - lam) (a slow loop's transient peaks later: lam = 0.993 near m = 145).
@@ -353,6 +357,8 @@ def robust_params(cfg: Config, orbit: KeplerOrbit) -> NDArray:
                 rp[RLA_DPP + i] = ta[name]
             for i, block in enumerate(("pp", "pv", "vp", "vv")):
                 rp[RA_ENV + i * N_ENV:RA_ENV + (i + 1) * N_ENV] = ta[f"env{block}"]
+            rp[R_DOCK_P] = cfg.mission.dock_distance_km
+            rp[R_DOCK_V] = cfg.mission.dock_speed_kmps
     rp.setflags(write=False)
     return rp
 
@@ -628,11 +634,16 @@ def transient_bound(rp: NDArray, m: int, xp: float, xv: float) -> tuple[float, f
     """Bounds of |P Phi^m e_0| and |V Phi^m e_0| (km, km/s) for |e_0,p| <= xp, |e_0,v| <= xv,
     Phi the tracking loop (``tsg.ancillary_bound`` l1): its envelope sup |X Phi^m Y| for m <
     N_ENV, else C0 lam^m."""
+    return transient_at(rp, m, rp[RA_LAM] ** m if m >= N_ENV else 1.0, xp, xv)
+
+
+@nb.njit(cache=True, error_model="numpy", inline="always")
+def transient_at(rp: NDArray, m: int, pw: float, xp: float, xv: float) -> tuple[float, float]:
+    """:func:`transient_bound` with lam^m given (``pw``; read only for m >= N_ENV)."""
     if m < N_ENV:
         return (rp[RA_ENV + m] * xp + rp[RA_ENV + N_ENV + m] * xv,
                 rp[RA_ENV + 2 * N_ENV + m] * xp + rp[RA_ENV + 3 * N_ENV + m] * xv)
-    f = rp[RA_LAM] ** m
-    return f * (rp[RA_C0PP] * xp + rp[RA_C0PV] * xv), f * (rp[RA_C0VP] * xp + rp[RA_C0VV] * xv)
+    return pw * (rp[RA_C0PP] * xp + rp[RA_C0PV] * xv), pw * (rp[RA_C0VP] * xp + rp[RA_C0VV] * xv)
 
 
 @nb.njit(cache=True, error_model="numpy", inline="always")
@@ -745,18 +756,21 @@ def l1_floor_step(rp: NDArray, ts: float, lam: float, j: int, r1: float, s1: flo
     k, p0, v0, d0, c1p, c1v, l1p, l1v, c2p, c2v, l2p, l2v = floor_forcings(rp, ts)
     dp_, dv_, bp_, bv_, eta_ = dp - k * p0, dv - k * v0, bp - p0, bv - v0, eta - d0
     z1p, z1v, z2p, z2v = start_transients(rp, b0p, b0v)
-    t1p, t1v = transient_bound(rp, j, z1p, z1v)
-    u1p, u1v = transient_bound(rp, j + 1, z1p, z1v)
-    t2p, t2v = transient_bound(rp, j, z2p, z2v)
-    u2p, u2v = transient_bound(rp, j + 1, z2p, z2v)
+    pw = lam ** j  # one power a step: lam^(j+1) = lam^j lam, the sums' factors (1 - lam^j) / (1 - lam)
+    pw1 = pw * lam
+    g0, g1 = (1.0 - pw) / (1.0 - lam), (1.0 - pw1) / (1.0 - lam)
+    t1p, t1v = transient_at(rp, j, pw, z1p, z1v)
+    u1p, u1v = transient_at(rp, j + 1, pw1, z1p, z1v)
+    t2p, t2v = transient_at(rp, j, pw, z2p, z2v)
+    u2p, u2v = transient_at(rp, j + 1, pw1, z2p, z2v)
     r1 = (lam * r1 + rp[RA_DPP] * dp_ + rp[RA_DPV] * dv_ + rp[RA_CPE] * eta_
-          + l1_floor(lam, j + 1, c1p, l1p) - lam * l1_floor(lam, j, c1p, l1p) + u1p - lam * t1p)
+          + min(l1p, g1 * c1p) - lam * min(l1p, g0 * c1p) + u1p - lam * t1p)
     s1 = (lam * s1 + rp[RA_DVP] * dp_ + rp[RA_DVV] * dv_ + rp[RA_CVE] * eta_
-          + l1_floor(lam, j + 1, c1v, l1v) - lam * l1_floor(lam, j, c1v, l1v) + u1v - lam * t1v)
+          + min(l1v, g1 * c1v) - lam * min(l1v, g0 * c1v) + u1v - lam * t1v)
     r2 = (lam * r2 + rp[RA_CNPP] * bp_ + rp[RA_CNPV] * bv_ + rp[RA_CPE] * eta_
-          + l1_floor(lam, j + 1, c2p, l2p) - lam * l1_floor(lam, j, c2p, l2p) + u2p - lam * t2p)
+          + min(l2p, g1 * c2p) - lam * min(l2p, g0 * c2p) + u2p - lam * t2p)
     s2 = (lam * s2 + rp[RA_CNVP] * bp_ + rp[RA_CNVV] * bv_ + rp[RA_CVE] * eta_
-          + l1_floor(lam, j + 1, c2v, l2v) - lam * l1_floor(lam, j, c2v, l2v) + u2v - lam * t2v)
+          + min(l2v, g1 * c2v) - lam * min(l2v, g0 * c2v) + u2v - lam * t2v)
     return r1, s1, r2, s2
 
 
@@ -911,6 +925,21 @@ def ancillary_track_handoff(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, 
     return track_ball_ok(xv, xc, cp, rp, rng, vel, ball_p, ball_v, ts)
 
 
+@nb.njit(cache=True, error_model="numpy", inline="always")
+def plan_rests(rp: NDArray, ts: float, r1: float, s1: float, r2: float, s2: float, j: int, b0p: float,
+               b0v: float) -> tuple[float, float, float, float]:
+    """The rests V1, S1's, V2, S2's of the ancillary tube's recursions at sample j under the l1
+    bound (:func:`l1_floor_step`): each state less its constant part's bound F_j and its initial
+    transient's T_j."""
+    lam = rp[RA_LAM]
+    k, p0, v0, d0, c1p, c1v, l1p, l1v, c2p, c2v, l2p, l2v = floor_forcings(rp, ts)
+    z1p, z1v, z2p, z2v = start_transients(rp, b0p, b0v)
+    t1p, t1v = transient_bound(rp, j, z1p, z1v)
+    t2p, t2v = transient_bound(rp, j, z2p, z2v)
+    return (r1 - l1_floor(lam, j, c1p, l1p) - t1p, s1 - l1_floor(lam, j, c1v, l1v) - t1v,
+            r2 - l1_floor(lam, j, c2p, l2p) - t2p, s2 - l1_floor(lam, j, c2v, l2v) - t2v)
+
+
 @nb.njit(cache=True, error_model="numpy")
 def ancillary_track_continued(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, dp: float, dv: float,
                               r1: float, s1: float, r2: float, s2: float, j: int, b0p: float, b0v: float,
@@ -933,14 +962,12 @@ def ancillary_track_continued(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray
     lam = rp[RA_LAM]
     gain = 1.0 / (1.0 - lam)
     k, p0, v0, d0, c1p, c1v, l1p, l1v, c2p, c2v, l2p, l2v = floor_forcings(rp, ts)
-    # the rests' states at j (less the constant parts' and the initial transients' bounds there),
-    # and the sups over all later samples of the constant parts (L F) and of the transients
+    # the rests' states at j, and the sups over all later samples of the constant parts (L F) and
+    # of the transients
+    v1p, v1v, v2p, v2v = plan_rests(rp, ts, r1, s1, r2, s2, j, b0p, b0v)
     z1p, z1v, z2p, z2v = start_transients(rp, b0p, b0v)
-    t1p, t1v = transient_bound(rp, j, z1p, z1v)
-    t2p, t2v = transient_bound(rp, j, z2p, z2v)
-    v1p, v1v = r1 - l1_floor(lam, j, c1p, l1p) - t1p, s1 - l1_floor(lam, j, c1v, l1v) - t1v
-    v2p, v2v = r2 - l1_floor(lam, j, c2p, l2p) - t2p, s2 - l1_floor(lam, j, c2v, l2v) - t2v
-    for m in range(j + 1, max(j + 1, N_ENV + 1)):
+    t1p = t1v = t2p = t2v = 0.0
+    for m in range(j, max(j + 1, N_ENV + 1)):
         a1p, a1v = transient_bound(rp, m, z1p, z1v)
         a2p, a2v = transient_bound(rp, m, z2p, z2v)
         t1p, t1v, t2p, t2v = max(t1p, a1p), max(t1v, a1v), max(t2p, a2p), max(t2v, a2v)
@@ -1071,7 +1098,8 @@ def ball_between_ok(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray, ball_p: 
 @nb.njit(cache=True, error_model="numpy")
 def terminal_ball_after(xv: NDArray, xc: NDArray, rp: NDArray, dp: float, dv: float, rho: float,
                         sig: float, ball_p: float, ball_v: float, handoff: float, ts: float, n: int,
-                        out: NDArray) -> None:
+                        out: NDArray, r1: float = 0.0, s1: float = 0.0, r2: float = 0.0, s2: float = 0.0,
+                        j: int = 0, b0p: float = 0.0, b0v: float = 0.0) -> None:
     """The ball (km, km/s) about x_v that the ancillary tube's terminal test certifies m = 0 .. n
     samples after its terminal sample, into ``out`` (n + 1, 2); the truth was within (rho, sigma)
     of the prediction there, the prediction within (dp, dv) of x_v, and the test accepted the
@@ -1090,8 +1118,14 @@ def terminal_ball_after(xv: NDArray, xc: NDArray, rp: NDArray, dp: float, dv: fl
       the forcing D Delta + C_e eta (``realistic``; C_n b and no offset under ``filter``), as
       :func:`robust_terminal_ok`;
     - tracking handoff (:data:`HANDOFF_TRACK`): B_m = R_m with R_0 = C0 (rho + dp, sigma + dv) and
-      the forcing C_n b + C_e eta of the tracking loop, as :func:`ancillary_track_handoff`.
+      the forcing C_n b + C_e eta of the tracking loop, as :func:`ancillary_track_handoff`; under
+      ``tsg.ancillary_bound`` l1 the plan's recursions go on from their states at its sample j
+      (r1, s1, r2, s2; b0p, b0v its navigation bounds at sample 0), as
+      :func:`ancillary_track_continued`, sample by sample (:func:`continued_ball_after`).
     """
+    if handoff != HANDOFF_FTRE and rp[R_L1] != 0.0:
+        continued_ball_after(xv, xc, rp, dp, dv, ball_p, ball_v, ts, n, out, r1, s1, r2, s2, j, b0p, b0v)
+        return
     rng = math.sqrt((xv[0] - xc[0]) ** 2 + (xv[1] - xc[1]) ** 2 + (xv[2] - xc[2]) ** 2)
     vel = math.sqrt((xv[3] - xc[3]) ** 2 + (xv[4] - xc[4]) ** 2 + (xv[5] - xc[5]) ** 2)
     ftre = handoff == HANDOFF_FTRE
@@ -1141,4 +1175,96 @@ def terminal_ball_after(xv: NDArray, xc: NDArray, rp: NDArray, dp: float, dv: fl
             big_r = lam * big_r + fr
             big_s = lam * big_s + fs
             dec *= lam
+
+
+@nb.njit(cache=True, error_model="numpy")
+def docking_limit(rp: NDArray, handoff: float, ts: float) -> tuple[float, float]:
+    """The ball (km, km/s) about the chief that the certified balls of a shift of 0
+    (:func:`terminal_ball_after`) settle to, once every transient has decayed: the handoff
+    loop's fixed point with the forcing at the ball's own range and speed (x_v is the chief).
+    FTRE handoff: R_inf + G b (R_inf = (D Delta + C_e d_max) / (1 - lam), the nominal loop's
+    transient gone); tracking handoff under the l1 bound (:func:`continued_ball_after`): min(V1_inf +
+    F1 + G b, V2_inf + F2), F the constant parts' bounds min(L F, C F / (1 - lam)), V_inf the
+    rest's fixed point."""
+    ball_p = ball_v = 0.0
+    for _ in range(200):  # increasing from 0 to the (unique: the forcing is affine in the range) fixed point
+        bp, bv, d_p, d_v = nav_terms(rp, ball_p, ball_v, ts)
+        if handoff == HANDOFF_FTRE:
+            gain = 1.0 / (1.0 - rp[R_LAM])
+            eta = rp[R_DMAX] + rp[R_KG] * ball_p
+            if rp[R_NJUMP] != 0.0:
+                new_p = gain * (rp[R_CNPP] * bp + rp[R_CNPV] * bv + rp[R_CPE] * eta)
+                new_v = gain * (rp[R_CNVP] * bp + rp[R_CNVV] * bv + rp[R_CVE] * eta)
+            else:
+                new_p = gain * (rp[R_DPP] * d_p + rp[R_DPV] * d_v + rp[R_CPE] * eta) + rp[R_GPP] * bp + rp[R_GPV] * bv
+                new_v = gain * (rp[R_DVP] * d_p + rp[R_DVV] * d_v + rp[R_CVE] * eta) + rp[R_GVP] * bp + rp[R_GVV] * bv
+        else:
+            lam = rp[RA_LAM]
+            gain = 1.0 / (1.0 - lam)
+            k, p0, v0, d0, c1p, c1v, l1p, l1v, c2p, c2v, l2p, l2v = floor_forcings(rp, ts)
+            eta_rest = rp[R_KG] * ball_p
+            i1p = gain * (rp[RA_DPP] * (d_p - k * p0) + rp[RA_DPV] * (d_v - k * v0) + rp[RA_CPE] * eta_rest)
+            i1v = gain * (rp[RA_DVP] * (d_p - k * p0) + rp[RA_DVV] * (d_v - k * v0) + rp[RA_CVE] * eta_rest)
+            i2p = gain * (rp[RA_CNPP] * (bp - p0) + rp[RA_CNPV] * (bv - v0) + rp[RA_CPE] * eta_rest)
+            i2v = gain * (rp[RA_CNVP] * (bp - p0) + rp[RA_CNVV] * (bv - v0) + rp[RA_CVE] * eta_rest)
+            new_p = min(i1p + min(l1p, gain * c1p) + rp[RA_GPP] * bp + rp[RA_GPV] * bv, i2p + min(l2p, gain * c2p))
+            new_v = min(i1v + min(l1v, gain * c1v) + rp[RA_GVP] * bp + rp[RA_GVV] * bv, i2v + min(l2v, gain * c2v))
+        settled = new_p - ball_p <= 1e-12 and new_v - ball_v <= 1e-15
+        ball_p, ball_v = new_p, new_v
+        if settled:
+            break
+    return ball_p, ball_v
+
+
+@nb.njit(cache=True, error_model="numpy")
+def ancillary_docks(rp: NDArray, handoff: float, ts: float) -> bool:
+    """Under the l1 bound, do the balls a shift of 0 is certified with settle inside the docking
+    test (``R_DOCK_P``, ``R_DOCK_V``; :func:`docking_limit`)? The tracking handoff may certify
+    tau = 0 safe with a ball that holds the truth decimetres off the client (the paper's orbit:
+    0.69 m under its soft tracking law), where the FTRE handoff, certified a few minutes later,
+    docks; a shift of 0 whose handoff cannot dock is refused, and the governor holds a shift
+    near it until one can."""
+    ball_p, ball_v = docking_limit(rp, handoff, ts)
+    return ball_p <= rp[R_DOCK_P] and ball_v <= rp[R_DOCK_V]
+
+
+@nb.njit(cache=True, error_model="numpy")
+def continued_ball_after(xv: NDArray, xc: NDArray, rp: NDArray, dp: float, dv: float, ball_p: float,
+                         ball_v: float, ts: float, n: int, out: NDArray, r1: float, s1: float, r2: float,
+                         s2: float, j: int, b0p: float, b0v: float) -> None:
+    """:func:`terminal_ball_after` for the tracking handoff under ``tsg.ancillary_bound`` l1: m
+    samples after the plan's terminal sample j the truth is within T_off(m) + min(V1_m + F1(j + m)
+    + T1(j + m) + G b_m, V2_m + F2(j + m) + T2(j + m)) of x_v (:func:`ancillary_track_continued`:
+    the offset's envelope T_off from (dp, dv), the rests V from their states at j by V' = lam V +
+    the rest of the forcing at the range the previous sequence bounds, the constant parts F
+    (:func:`l1_floor`) and the initial transients T (:func:`transient_bound`) at sample j + m), the
+    terminal test's ball (ball_p, ball_v) first, tightened by iteration as there."""
+    rng = math.sqrt((xv[0] - xc[0]) ** 2 + (xv[1] - xc[1]) ** 2 + (xv[2] - xc[2]) ** 2)
+    vel = math.sqrt((xv[3] - xc[3]) ** 2 + (xv[4] - xc[4]) ** 2 + (xv[5] - xc[5]) ** 2)
+    lam = rp[RA_LAM]
+    k, p0, v0, d0, c1p, c1v, l1p, l1v, c2p, c2v, l2p, l2v = floor_forcings(rp, ts)
+    z1p, z1v, z2p, z2v = start_transients(rp, b0p, b0v)
+    w1p, w1v, w2p, w2v = plan_rests(rp, ts, r1, s1, r2, s2, j, b0p, b0v)
+    for m in range(n + 1):
+        out[m, 0] = ball_p
+        out[m, 1] = ball_v
+    for _ in range(4):
+        v1p, v1v, v2p, v2v = w1p, w1v, w2p, w2v
+        for m in range(n + 1):
+            b_p, b_v = out[m, 0], out[m, 1]  # the previous sequence: this sample's range and speed
+            bp, bv, d_p, d_v = nav_terms(rp, rng + b_p, vel + b_v, ts)
+            op, ov = transient_bound(rp, m, dp, dv)
+            a1p, a1v = transient_bound(rp, j + m, z1p, z1v)
+            a2p, a2v = transient_bound(rp, j + m, z2p, z2v)
+            new_p = op + min(v1p + l1_floor(lam, j + m, c1p, l1p) + a1p + rp[RA_GPP] * bp + rp[RA_GPV] * bv,
+                             v2p + l1_floor(lam, j + m, c2p, l2p) + a2p)
+            new_v = ov + min(v1v + l1_floor(lam, j + m, c1v, l1v) + a1v + rp[RA_GVP] * bp + rp[RA_GVV] * bv,
+                             v2v + l1_floor(lam, j + m, c2v, l2v) + a2v)
+            out[m, 0] = min(b_p, new_p)
+            out[m, 1] = min(b_v, new_v)
+            eta_rest = rp[R_KG] * (rng + b_p)  # u = -K_a (x_hat - x_v): no command outside the loop's M
+            v1p = lam * v1p + rp[RA_DPP] * (d_p - k * p0) + rp[RA_DPV] * (d_v - k * v0) + rp[RA_CPE] * eta_rest
+            v1v = lam * v1v + rp[RA_DVP] * (d_p - k * p0) + rp[RA_DVV] * (d_v - k * v0) + rp[RA_CVE] * eta_rest
+            v2p = lam * v2p + rp[RA_CNPP] * (bp - p0) + rp[RA_CNPV] * (bv - v0) + rp[RA_CPE] * eta_rest
+            v2v = lam * v2v + rp[RA_CNVP] * (bp - p0) + rp[RA_CNVV] * (bv - v0) + rp[RA_CVE] * eta_rest
 

@@ -53,9 +53,10 @@ from .errors import NoFeasibleShiftError, StateError
 from .orbit import (N_PARAMS, P_E, P_M0, P_MU, P_N, KeplerOrbit, check_states,
                     eccentric_anomaly_kernel, osculating_params_kernel, state_from_anomaly_kernel,
                     state_kernel, state_warm_kernel)
-from .robust import (HANDOFF_FTRE, R_BETWEEN, R_GAMMA, R_ON, R_SINA, R_TUBE, R_ZETA, ancillary_command_bound,
-                     ancillary_start, ancillary_step, frame_rates, interval_ok, sample_excess, truth_acceleration,
-                     ancillary_terminal_ok, robust_params, robust_terminal_ok, tube_next, tube_ok, tube_start)
+from .robust import (HANDOFF_FTRE, R_BETWEEN, R_GAMMA, R_L1, R_ON, R_SINA, R_TUBE, R_ZETA, ancillary_command_bound,
+                     ancillary_docks, ancillary_start, ancillary_step, ancillary_terminal_ok, frame_rates,
+                     interval_ok, robust_params, robust_terminal_ok, sample_excess, truth_acceleration, tube_next,
+                     tube_ok, tube_start)
 from .units import ns_to_seconds
 from .units import seconds_to_ns as to_ns
 
@@ -144,7 +145,9 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
     the loop the truth flies on with (:data:`~cikan_ros.robust.HANDOFF_FTRE` 1, or under the
     ancillary tube :data:`~cikan_ros.robust.HANDOFF_TRACK` 2: the tracking law holding x_v) and
     in columns 18-21 what the terminal test started from (the prediction's distance and speed
-    from x_v, rho and sigma there: :func:`~cikan_ros.robust.terminal_ball_after`): what ``cikan
+    from x_v, rho and sigma there: :func:`~cikan_ros.robust.terminal_ball_after`; under the l1
+    bound, columns 22-28: the ancillary tube's recursions R1, S1, R2, S2, the sample and the
+    navigation bounds at sample 0): what ``cikan
     coverage`` compares the truth with, and what the ancillary tube's controller tracks.
     Under the ancillary tube (``rp[R_TUBE]``) the prediction flies at gamma u_max and the tube is
     :func:`~cikan_ros.robust.ancillary_step`'s, which refuses a shift whose tracking law could
@@ -240,6 +243,8 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
                 ok, ball_p, ball_v, handoff = ancillary_terminal_ok(xv, xc, cp, rp, math.sqrt(dp2),
                                                                     math.sqrt(dv2), rho, sig, ts,
                                                                     big_r, big_s, r2, s2, j, b0p, b0v)
+                if ok and tau == 0.0 and rp[R_L1] != 0.0:  # docking: the ball must settle inside the test
+                    ok = ancillary_docks(rp, handoff, ts)
             else:
                 ok, ball_p, ball_v = robust_terminal_ok(xv, xc, cp, rp, math.sqrt(dp2), math.sqrt(dv2),
                                                         big_r, big_s, linear, ts)
@@ -254,6 +259,15 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
                     trace[j, 19] = math.sqrt(dv2)
                     trace[j, 20] = rho
                     trace[j, 21] = sig
+                    # the l1 bound's continued handoff (robust.continued_ball_after): the plan's
+                    # recursions, this sample and the navigation bounds at sample 0
+                    trace[j, 22] = big_r
+                    trace[j, 23] = big_s
+                    trace[j, 24] = r2
+                    trace[j, 25] = s2
+                    trace[j, 26] = j
+                    trace[j, 27] = b0p
+                    trace[j, 28] = b0v
                 return True
         a_n = ftre_control_kernel(table, nu_v, x, xv, u_pred, u)  # |u| before saturation
         # h2 holds by saturation up to rounding; checked so a changed control law cannot skip it.
@@ -285,7 +299,7 @@ def rollout_kernel(orb: NDArray, table: NDArray, cp: NDArray, tp: NDArray, rp: N
 
 
 #: Columns of a rollout trace (:func:`rollout_kernel`).
-TRACE_WIDTH = 22
+TRACE_WIDTH = 29
 
 
 class ChiefCache:
@@ -710,7 +724,7 @@ class Predictor:
                                   self._shift(tau, "tau"), c.rows, c.t0))
 
     def rollout_trace(self, x_d: ArrayLike, t: float, tau: float) -> tuple[bool, NDArray]:
-        """One rollout of Verify(x_d, t, tau) (without the zeta interval) and its trace (N_p, 22)
+        """One rollout of Verify(x_d, t, tau) (without the zeta interval) and its trace (N_p, 29)
         under robust Verify: per checked sample the predicted deputy (km, km/s, ECI), rho (km),
         sigma (km/s), 0, the command (km/s^2) and the predicted chief; at the accepting sample the
         virtual target, the terminal ball's radii, the handoff and the terminal test's inputs;

@@ -18,9 +18,9 @@ from cikan_ros.coverage import ROUNDING, coverage_tasks, held_shift_coverage
 from cikan_ros.dynamics import linearisation
 from cikan_ros.errors import ConfigError
 from cikan_ros.orbit import elements_to_state
-from cikan_ros.robust import (HANDOFF_FTRE, HANDOFF_TRACK, ancillary_ftre_handoff, ancillary_start, ancillary_step,
-                              ancillary_track_continued, ancillary_track_handoff, terminal_ball_after,
-                              thrust_matrices)
+from cikan_ros.robust import (HANDOFF_FTRE, HANDOFF_TRACK, ancillary_docks, ancillary_ftre_handoff, ancillary_start,
+                              ancillary_step, ancillary_track_continued, ancillary_track_handoff, docking_limit,
+                              terminal_ball_after, thrust_matrices)
 from cikan_ros.tsg import Predictor
 from ros_helpers import ros_env, rosbags_messages, sim_steps, states, tau_history  # noqa: F401 (fixture)
 
@@ -120,9 +120,10 @@ def test_the_continued_tracking_handoff_bounds_the_error(seed, nu, which, rng_km
     """Under the l1 bound the tracking handoff continues the plan's recursions: after ``steps``
     samples of a plan the truth holds x_v (the prediction there, offset by up to the nominal terminal
     set) with u = -K_a (x_hat - x_v), e = x - x_v obeying e' = Phi_M e - B M K_a delta + B d; wherever
-    ancillary_track_continued accepts, the command stays within u_max and |e_p| <= ball_p,
-    |e_v| <= ball_v for 300 samples, with the navigation error anywhere in its ball at every sample
-    or held at its plan's value."""
+    ancillary_track_continued accepts, the command stays within u_max and |e_p|, |e_v| stay within
+    the balls robust.terminal_ball_after certifies per sample (inside the test's one ball) for 300
+    samples, with the navigation error anywhere in its ball at every sample or held at its plan's
+    value."""
     truth, u_max = CFG.truth, CFG.control.u_max_kmps2
     flown = fly_plan(PRED_L1, seed, nu, which, rng_km, steps, hold_nav, u_frac)  # a plan's last approach
     if flown is None:
@@ -137,9 +138,16 @@ def test_the_continued_tracking_handoff_bounds_the_error(seed, nu, which, rng_km
                                                    r2, s2, steps, b0p, b0v, CFG.control.period_s)
     if not ok:
         return
+    # and the ball over time (robust.terminal_ball_after, the plan's recursions continued), inside
+    # the one ball, at every sample
+    shrinking = np.empty((301, 2))
+    terminal_ball_after(x_v, chief, PRED_L1.rparams, dp, dv, 0.0, 0.0, ball_p, ball_v, HANDOFF_TRACK,
+                        CFG.control.period_s, 300, shrinking, r1, s1, r2, s2, steps, b0p, b0v)
+    assert np.all(shrinking[:, 0] <= ball_p) and np.all(shrinking[:, 1] <= ball_v)
     e = e + np.concatenate([ball_draw(rng, dp), ball_draw(rng, dv)])
+    assert np.linalg.norm(e[:3]) <= shrinking[0, 0] and np.linalg.norm(e[3:]) <= shrinking[0, 1]
     delta = None
-    for _ in range(300):
+    for i in range(300):
         r = rng_km + ball_p
         bp = truth.bound("nav_pos_floor_km") + truth.bound("nav_pos_range_fraction") * r
         bv = truth.bound("nav_vel_floor_kmps") + truth.bound("nav_vel_range_fraction_per_s") * r
@@ -148,8 +156,8 @@ def test_the_continued_tracking_handoff_bounds_the_error(seed, nu, which, rng_km
         u = -k_a @ (e + delta)
         assert np.linalg.norm(u) <= u_max
         e = a_d @ e + b_d @ (m @ u + ball_draw(rng, truth.bound("disturbance_max_kmps2")))
-        assert np.linalg.norm(e[:3]) <= ball_p
-        assert np.linalg.norm(e[3:]) <= ball_v
+        assert np.linalg.norm(e[:3]) <= shrinking[i + 1, 0]
+        assert np.linalg.norm(e[3:]) <= shrinking[i + 1, 1]
 
 
 @settings(max_examples=12, deadline=None)
@@ -443,6 +451,25 @@ def test_a_model_of_one_gain_is_refused_under_a_gain_schedule():
     assert "tsg.ancillary_bands_km" not in label_config(CFG.flat())
     assert label_mismatch(card, CFG.flat()) is None
     assert "tsg.ancillary_bands_km" in label_mismatch(card, _banded(1.0, 1e11).flat())
+
+
+@pytest.mark.parametrize("handoff", [HANDOFF_FTRE, HANDOFF_TRACK], ids=["ftre", "track"])
+def test_a_shift_of_zero_docks_where_its_certified_balls_settle(handoff):
+    """Under the l1 bound a shift of 0 is accepted only when the balls its handoff certifies
+    (terminal_ball_after, hours on) settle inside the docking test: docking_limit is where they
+    settle (x_v the chief, every transient gone); on the paper's orbit the FTRE handoff docks (4.4
+    cm) and its soft tracking law does not (0.69 m)."""
+    rp, ts = PRED_L1.rparams, CFG.control.period_s
+    chief = PRED_L1.orbit.state(0.0)[:6]
+    ball_p, ball_v = docking_limit(rp, handoff, ts)
+    n = 4000
+    out = np.empty((n + 1, 2))
+    terminal_ball_after(chief, chief, rp, 1e-5, 1e-6, 1e-3, 1e-5, 1.0, 1e-2, handoff, ts, n, out,
+                        1e-3, 1e-5, 1e-3, 1e-5, 30, 1e-5, 1e-6)
+    # (the sequence iterates its ranges four times: within 1e-3 of the fixed point)
+    assert ball_p <= out[n, 0] <= ball_p * (1.0 + 1e-3) and ball_v <= out[n, 1] <= ball_v * (1.0 + 1e-3)
+    docks = ball_p <= CFG.mission.dock_distance_km and ball_v <= CFG.mission.dock_speed_kmps
+    assert ancillary_docks(rp, handoff, ts) == docks == (handoff == HANDOFF_FTRE)
 
 
 def test_a_model_of_the_geometric_bound_is_refused_under_the_l1_bound():
