@@ -506,3 +506,6 @@ def test_cikan_tube_lists_each_gain_band_of_a_scenario():
     assert [b["from_km"] for b in bands] == [0.0, *geo["tsg.ancillary_bands_km"]]
     assert [b["r_diag"][0] for b in bands] == [geo["tsg.ancillary_r_diag"][0], *geo["tsg.ancillary_bands_r"]]
     assert all(a["lam"] < b["lam"] < 1.0 and a["kp"] > b["kp"] for a, b in zip(bands, bands[1:]))
+    # the l1 bound's share of the geometric one (<= 1 by construction), and the envelope below C0
+    assert all(0.0 < r <= 1.0 for b in bands for r in b["l1_over_geometric"].values())
+    assert all(e["peak"] <= b["c0"][k] for b in bands for k, e in b["envelope"].items())

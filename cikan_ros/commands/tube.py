@@ -15,7 +15,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "declared thruster errors (docs/robustness.md); declared errors "
                                    "that destabilise the loop are reported under 'unstable'. Under "
                                    "the ancillary tube, 'ancillary' lists each gain band's tracking "
-                                   "loop (least range, weight, lam, |K_p|, |K_v|).")
+                                   "loop (least range, weight, lam, |K_p|, |K_v|, the l1 norms over "
+                                   "the geometric bound per block, C0, the DC gains G and the transient's "
+                                   "envelope).")
     add_config_args(p)
     p.set_defaults(func=run)
 
@@ -49,6 +51,16 @@ def run(args: argparse.Namespace) -> int:
                 tc = tube_constants(orbit, track, truth.bound("thrust_bias_max"),
                                     math.radians(truth.bound("thrust_pointing_max_deg")))
                 row.update({k: tc[k] for k in ("lam", "kp", "kv")})
+                blocks = ("pp", "pv", "vp", "vv")
+                # what the l1 bound (tsg.ancillary_bound l1) takes of the geometric one, per block,
+                # and the transient's envelope against C0 (docs/robustness.md, "The l1 bound")
+                row["l1_over_geometric"] = {
+                    k: tc[f"l{k}"] / (tc[k] / (1.0 - tc["lam"]))
+                    for k in [f"cn{b}" for b in blocks] + [f"d{b}" for b in blocks] + ["cpe", "cve"]}
+                row["c0"] = {b: tc[f"c0{b}"] for b in blocks}
+                row["g"] = {b: tc[f"g{b}"] for b in blocks}  # the DC gains of a lasting navigation offset
+                row["envelope"] = {b: {"peak": max(tc[f"env{b}"]), "at": tc[f"env{b}"].index(max(tc[f"env{b}"])),
+                                       "m1": tc[f"env{b}"][1]} for b in blocks}
             except UnstableLoopError as exc:
                 row["unstable"] = str(exc)
             bands.append(row)
