@@ -482,6 +482,7 @@ def test_a_model_of_the_geometric_bound_is_refused_under_the_l1_bound():
     l1 = PRED_L1.config.flat()
     assert "tsg.ancillary_bound" not in label_config(CFG.flat())
     assert "tsg.ancillary_bound" in label_mismatch(card, l1)
+    assert "(l1 bound)" in label_mismatch(card, l1)
     assert label_mismatch({"config": l1}, l1) is None
     with pytest.raises(ConfigError, match="tsg.ancillary_bound"):
         load_config(**{"tsg.ancillary_bound": "tight"})

@@ -188,6 +188,8 @@ def describe_labels(labels: Mapping[str, Any]) -> str:
     if not robust:
         return f"nominal Verify (controller R = {float(r[0]):g})"
     tube = "" if labels.get("tsg.tube", "ball") == "ball" else f", {labels['tsg.tube']} tube"
+    if tube and labels.get("tsg.ancillary_bound", "geometric") != "geometric":
+        tube += f" ({labels['tsg.ancillary_bound']} bound)"
     return (f"robust Verify (truth {labels.get('truth.name')} at scale {labels.get('truth.scale')}, "
             f"controller R = {float(r[0]):g}{tube})")
 
