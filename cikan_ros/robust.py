@@ -975,13 +975,12 @@ def ancillary_track_continued(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray
     f2p, f2v = min(l2p, gain * c2p) + t2p, min(l2v, gain * c2v) + t2v
     off_p = rp[RA_C0PP] * dp + rp[RA_C0PV] * dv
     off_v = rp[RA_C0VP] * dp + rp[RA_C0VV] * dv
-    eta_rest = rp[R_KG] * rng  # u_p = 0: no thruster error outside the loop's M; d_max is constant
     ball_p, ball_v = off_p + min(max(v1p, 0.0) + f1p, max(v2p, 0.0) + f2p), \
         off_v + min(max(v1v, 0.0) + f1v, max(v2v, 0.0) + f2v)
     for _ in range(100):  # the ball enters its own range and speed bounds: to the fixed point
         rr = rng + ball_p
         bp, bv, d_p, d_v = nav_terms(rp, rr, vel + ball_v, ts)
-        eta_rest = rp[R_KG] * rr
+        eta_rest = rp[R_KG] * rr  # u_p = 0: no thruster error outside the loop's M; d_max is constant
         i1p = gain * (rp[RA_DPP] * (d_p - k * p0) + rp[RA_DPV] * (d_v - k * v0) + rp[RA_CPE] * eta_rest)
         i1v = gain * (rp[RA_DVP] * (d_p - k * p0) + rp[RA_DVV] * (d_v - k * v0) + rp[RA_CVE] * eta_rest)
         i2p = gain * (rp[RA_CNPP] * (bp - p0) + rp[RA_CNPV] * (bv - v0) + rp[RA_CPE] * eta_rest)
