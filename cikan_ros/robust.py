@@ -739,6 +739,19 @@ def floor_forcings(rp: NDArray, ts: float) -> tuple[float, float, float, float, 
     return k, p0, v0, d0, c1p, c1v, l1p, l1v, c2p, c2v, l2p, l2v
 
 
+@nb.njit(cache=True, error_model="numpy", inline="always")
+def rest_forcing(rp: NDArray, k: float, p0: float, v0: float, d0: float, bp: float, bv: float, dp: float,
+                 dv: float, eta: float) -> tuple[float, float, float, float]:
+    """The ancillary tube's per-sample forcing less its constant part (:func:`floor_forcings`: k,
+    the floors p0, v0, d0), for recursion 1 (D (Delta - k b_0) + C_e (eta - d0)) and recursion 2
+    (C_n (b - b_0) + C_e (eta - d0)), position and velocity: (f1p, f1v, f2p, f2v)."""
+    dp_, dv_, bp_, bv_, eta_ = dp - k * p0, dv - k * v0, bp - p0, bv - v0, eta - d0
+    return (rp[RA_DPP] * dp_ + rp[RA_DPV] * dv_ + rp[RA_CPE] * eta_,
+            rp[RA_DVP] * dp_ + rp[RA_DVV] * dv_ + rp[RA_CVE] * eta_,
+            rp[RA_CNPP] * bp_ + rp[RA_CNPV] * bv_ + rp[RA_CPE] * eta_,
+            rp[RA_CNVP] * bp_ + rp[RA_CNVV] * bv_ + rp[RA_CVE] * eta_)
+
+
 @nb.njit(cache=True, error_model="numpy")
 def l1_floor_step(rp: NDArray, ts: float, lam: float, j: int, r1: float, s1: float, r2: float, s2: float,
                   bp: float, bv: float, dp: float, dv: float, eta: float, b0p: float, b0v: float
@@ -754,7 +767,7 @@ def l1_floor_step(rp: NDArray, ts: float, lam: float, j: int, r1: float, s1: flo
     taken apart the same way: their envelope T_j (:func:`transient_bound`, exact per power where
     C0 lam^j is loose), so R_j = V_j + F_j + T_j with V_j the forcing's rest from V_0 = 0."""
     k, p0, v0, d0, c1p, c1v, l1p, l1v, c2p, c2v, l2p, l2v = floor_forcings(rp, ts)
-    dp_, dv_, bp_, bv_, eta_ = dp - k * p0, dv - k * v0, bp - p0, bv - v0, eta - d0
+    f1p, f1v, f2p, f2v = rest_forcing(rp, k, p0, v0, d0, bp, bv, dp, dv, eta)
     z1p, z1v, z2p, z2v = start_transients(rp, b0p, b0v)
     pw = lam ** j  # one power a step: lam^(j+1) = lam^j lam, the sums' factors (1 - lam^j) / (1 - lam)
     pw1 = pw * lam
@@ -763,14 +776,10 @@ def l1_floor_step(rp: NDArray, ts: float, lam: float, j: int, r1: float, s1: flo
     u1p, u1v = transient_at(rp, j + 1, pw1, z1p, z1v)
     t2p, t2v = transient_at(rp, j, pw, z2p, z2v)
     u2p, u2v = transient_at(rp, j + 1, pw1, z2p, z2v)
-    r1 = (lam * r1 + rp[RA_DPP] * dp_ + rp[RA_DPV] * dv_ + rp[RA_CPE] * eta_
-          + min(l1p, g1 * c1p) - lam * min(l1p, g0 * c1p) + u1p - lam * t1p)
-    s1 = (lam * s1 + rp[RA_DVP] * dp_ + rp[RA_DVV] * dv_ + rp[RA_CVE] * eta_
-          + min(l1v, g1 * c1v) - lam * min(l1v, g0 * c1v) + u1v - lam * t1v)
-    r2 = (lam * r2 + rp[RA_CNPP] * bp_ + rp[RA_CNPV] * bv_ + rp[RA_CPE] * eta_
-          + min(l2p, g1 * c2p) - lam * min(l2p, g0 * c2p) + u2p - lam * t2p)
-    s2 = (lam * s2 + rp[RA_CNVP] * bp_ + rp[RA_CNVV] * bv_ + rp[RA_CVE] * eta_
-          + min(l2v, g1 * c2v) - lam * min(l2v, g0 * c2v) + u2v - lam * t2v)
+    r1 = lam * r1 + f1p + min(l1p, g1 * c1p) - lam * min(l1p, g0 * c1p) + u1p - lam * t1p
+    s1 = lam * s1 + f1v + min(l1v, g1 * c1v) - lam * min(l1v, g0 * c1v) + u1v - lam * t1v
+    r2 = lam * r2 + f2p + min(l2p, g1 * c2p) - lam * min(l2p, g0 * c2p) + u2p - lam * t2p
+    s2 = lam * s2 + f2v + min(l2v, g1 * c2v) - lam * min(l2v, g0 * c2v) + u2v - lam * t2v
     return r1, s1, r2, s2
 
 
@@ -980,11 +989,9 @@ def ancillary_track_continued(xv: NDArray, xc: NDArray, cp: NDArray, rp: NDArray
     for _ in range(100):  # the ball enters its own range and speed bounds: to the fixed point
         rr = rng + ball_p
         bp, bv, d_p, d_v = nav_terms(rp, rr, vel + ball_v, ts)
-        eta_rest = rp[R_KG] * rr  # u_p = 0: no thruster error outside the loop's M; d_max is constant
-        i1p = gain * (rp[RA_DPP] * (d_p - k * p0) + rp[RA_DPV] * (d_v - k * v0) + rp[RA_CPE] * eta_rest)
-        i1v = gain * (rp[RA_DVP] * (d_p - k * p0) + rp[RA_DVV] * (d_v - k * v0) + rp[RA_CVE] * eta_rest)
-        i2p = gain * (rp[RA_CNPP] * (bp - p0) + rp[RA_CNPV] * (bv - v0) + rp[RA_CPE] * eta_rest)
-        i2v = gain * (rp[RA_CNVP] * (bp - p0) + rp[RA_CNVV] * (bv - v0) + rp[RA_CVE] * eta_rest)
+        # u_p = 0: no thruster error outside the loop's M; d_max is in the constant part
+        f1p, f1v, f2p, f2v = rest_forcing(rp, k, p0, v0, d0, bp, bv, d_p, d_v, d0 + rp[R_KG] * rr)
+        i1p, i1v, i2p, i2v = gain * f1p, gain * f1v, gain * f2p, gain * f2v
         new_p = off_p + min(max(v1p, i1p) + f1p + rp[RA_GPP] * bp + rp[RA_GPV] * bv, max(v2p, i2p) + f2p)
         new_v = off_v + min(max(v1v, i1v) + f1v + rp[RA_GVP] * bp + rp[RA_GVV] * bv, max(v2v, i2v) + f2v)
         settled = new_p - ball_p <= 1e-12 and new_v - ball_v <= 1e-15
@@ -1201,11 +1208,8 @@ def docking_limit(rp: NDArray, handoff: float, ts: float) -> tuple[float, float]
             lam = rp[RA_LAM]
             gain = 1.0 / (1.0 - lam)
             k, p0, v0, d0, c1p, c1v, l1p, l1v, c2p, c2v, l2p, l2v = floor_forcings(rp, ts)
-            eta_rest = rp[R_KG] * ball_p
-            i1p = gain * (rp[RA_DPP] * (d_p - k * p0) + rp[RA_DPV] * (d_v - k * v0) + rp[RA_CPE] * eta_rest)
-            i1v = gain * (rp[RA_DVP] * (d_p - k * p0) + rp[RA_DVV] * (d_v - k * v0) + rp[RA_CVE] * eta_rest)
-            i2p = gain * (rp[RA_CNPP] * (bp - p0) + rp[RA_CNPV] * (bv - v0) + rp[RA_CPE] * eta_rest)
-            i2v = gain * (rp[RA_CNVP] * (bp - p0) + rp[RA_CNVV] * (bv - v0) + rp[RA_CVE] * eta_rest)
+            f1p, f1v, f2p, f2v = rest_forcing(rp, k, p0, v0, d0, bp, bv, d_p, d_v, d0 + rp[R_KG] * ball_p)
+            i1p, i1v, i2p, i2v = gain * f1p, gain * f1v, gain * f2p, gain * f2v
             new_p = min(i1p + min(l1p, gain * c1p) + rp[RA_GPP] * bp + rp[RA_GPV] * bv, i2p + min(l2p, gain * c2p))
             new_v = min(i1v + min(l1v, gain * c1v) + rp[RA_GVP] * bp + rp[RA_GVV] * bv, i2v + min(l2v, gain * c2v))
         settled = new_p - ball_p <= 1e-12 and new_v - ball_v <= 1e-15
@@ -1261,9 +1265,7 @@ def continued_ball_after(xv: NDArray, xc: NDArray, rp: NDArray, dp: float, dv: f
                              v2v + l1_floor(lam, j + m, c2v, l2v) + a2v)
             out[m, 0] = min(b_p, new_p)
             out[m, 1] = min(b_v, new_v)
-            eta_rest = rp[R_KG] * (rng + b_p)  # u = -K_a (x_hat - x_v): no command outside the loop's M
-            v1p = lam * v1p + rp[RA_DPP] * (d_p - k * p0) + rp[RA_DPV] * (d_v - k * v0) + rp[RA_CPE] * eta_rest
-            v1v = lam * v1v + rp[RA_DVP] * (d_p - k * p0) + rp[RA_DVV] * (d_v - k * v0) + rp[RA_CVE] * eta_rest
-            v2p = lam * v2p + rp[RA_CNPP] * (bp - p0) + rp[RA_CNPV] * (bv - v0) + rp[RA_CPE] * eta_rest
-            v2v = lam * v2v + rp[RA_CNVP] * (bp - p0) + rp[RA_CNVV] * (bv - v0) + rp[RA_CVE] * eta_rest
+            # u = -K_a (x_hat - x_v): no command outside the loop's M
+            f1p, f1v, f2p, f2v = rest_forcing(rp, k, p0, v0, d0, bp, bv, d_p, d_v, d0 + rp[R_KG] * (rng + b_p))
+            v1p, v1v, v2p, v2v = lam * v1p + f1p, lam * v1v + f1v, lam * v2p + f2p, lam * v2v + f2v
 

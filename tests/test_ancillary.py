@@ -51,6 +51,29 @@ def tracking_loop(nu: float, which: int) -> tuple[np.ndarray, ...]:
     return thrust_matrices(bias, point)[which], chief, a_d, b_d, k_a
 
 
+def hold_target(rng: np.random.Generator, e: np.ndarray, loop: tuple[np.ndarray, ...], r_km: float,
+                balls: np.ndarray, hold_nav: bool = False) -> None:
+    """The truth holding x_v with u = -K_a (x_hat - x_v) from the error e (6,) for len(balls) - 1
+    samples, e' = Phi_M e - B M K_a delta + B d (``loop``: M, A_d, B_d, K_a), the navigation error
+    anywhere in its ball at the range r_km (the farthest the truth can be) at every sample, or held
+    at its first draw (``hold_nav``), |d| <= d_max: the command stays within u_max and |e_p|,
+    |e_v| within ``balls`` (n + 1, 2) at every sample, from the first."""
+    truth, u_max = CFG.truth, CFG.control.u_max_kmps2
+    m, a_d, b_d, k_a = loop
+    assert np.linalg.norm(e[:3]) <= balls[0, 0] and np.linalg.norm(e[3:]) <= balls[0, 1]
+    bp = truth.bound("nav_pos_floor_km") + truth.bound("nav_pos_range_fraction") * r_km
+    bv = truth.bound("nav_vel_floor_kmps") + truth.bound("nav_vel_range_fraction_per_s") * r_km
+    delta = None
+    for i in range(len(balls) - 1):
+        if delta is None or not hold_nav:
+            delta = np.concatenate([ball_draw(rng, bp), ball_draw(rng, bv)])
+        u = -k_a @ (e + delta)
+        assert np.linalg.norm(u) <= u_max
+        e = a_d @ e + b_d @ (m @ u + ball_draw(rng, truth.bound("disturbance_max_kmps2")))
+        assert np.linalg.norm(e[:3]) <= balls[i + 1, 0]
+        assert np.linalg.norm(e[3:]) <= balls[i + 1, 1]
+
+
 def fly_plan(pred: Predictor, seed: int, nu: float, which: int, rng_km: float, steps: int, hold_nav: bool = False,
              u_frac: float = 1.0) -> tuple[np.ndarray, ...] | None:
     """The truth tracking a prediction at rest rng_km from the chief (it tracks the prediction, so
@@ -124,7 +147,6 @@ def test_the_continued_tracking_handoff_bounds_the_error(seed, nu, which, rng_km
     the balls robust.terminal_ball_after certifies per sample (inside the test's one ball) for 300
     samples, with the navigation error anywhere in its ball at every sample or held at its plan's
     value."""
-    truth, u_max = CFG.truth, CFG.control.u_max_kmps2
     flown = fly_plan(PRED_L1, seed, nu, which, rng_km, steps, hold_nav, u_frac)  # a plan's last approach
     if flown is None:
         return
@@ -145,19 +167,7 @@ def test_the_continued_tracking_handoff_bounds_the_error(seed, nu, which, rng_km
                         CFG.control.period_s, 300, shrinking, r1, s1, r2, s2, steps, b0p, b0v)
     assert np.all(shrinking[:, 0] <= ball_p) and np.all(shrinking[:, 1] <= ball_v)
     e = e + np.concatenate([ball_draw(rng, dp), ball_draw(rng, dv)])
-    assert np.linalg.norm(e[:3]) <= shrinking[0, 0] and np.linalg.norm(e[3:]) <= shrinking[0, 1]
-    delta = None
-    for i in range(300):
-        r = rng_km + ball_p
-        bp = truth.bound("nav_pos_floor_km") + truth.bound("nav_pos_range_fraction") * r
-        bv = truth.bound("nav_vel_floor_kmps") + truth.bound("nav_vel_range_fraction_per_s") * r
-        if delta is None or not hold_nav:
-            delta = np.concatenate([ball_draw(rng, bp), ball_draw(rng, bv)])
-        u = -k_a @ (e + delta)
-        assert np.linalg.norm(u) <= u_max
-        e = a_d @ e + b_d @ (m @ u + ball_draw(rng, truth.bound("disturbance_max_kmps2")))
-        assert np.linalg.norm(e[:3]) <= shrinking[i + 1, 0]
-        assert np.linalg.norm(e[3:]) <= shrinking[i + 1, 1]
+    hold_target(rng, e, (m, a_d, b_d, k_a), rng_km + ball_p, shrinking, hold_nav)
 
 
 @settings(max_examples=12, deadline=None)
@@ -171,7 +181,6 @@ def test_the_tracking_handoff_ball_bounds_the_error_and_keeps_headroom(seed, nu,
     navigation error anywhere in its ball at every sample (no smoothness), |d| <= d_max: wherever
     ancillary_track_handoff accepts, the command stays within u_max and |e_p| <= ball_p,
     |e_v| <= ball_v at every sample."""
-    truth, u_max = CFG.truth, CFG.control.u_max_kmps2
     m, chief, a_d, b_d, k_a = tracking_loop(nu, which)
     # the virtual target on the cone's axis behind the chief, moving with it
     x_v = chief.copy()
@@ -188,17 +197,7 @@ def test_the_tracking_handoff_ball_bounds_the_error_and_keeps_headroom(seed, nu,
     terminal_ball_after(x_v, chief, PRED.rparams, dp, dv, rho_km, sig_kmps, ball_p, ball_v, HANDOFF_TRACK,
                         CFG.control.period_s, 300, shrinking)
     assert np.all(shrinking[:, 0] <= ball_p) and np.all(shrinking[:, 1] <= ball_v)
-    assert np.linalg.norm(e[:3]) <= shrinking[0, 0] and np.linalg.norm(e[3:]) <= shrinking[0, 1]
-    for i in range(300):
-        r = rng_km + ball_p  # the navigation bound at the farthest the truth can be
-        bp = truth.bound("nav_pos_floor_km") + truth.bound("nav_pos_range_fraction") * r
-        bv = truth.bound("nav_vel_floor_kmps") + truth.bound("nav_vel_range_fraction_per_s") * r
-        delta = np.concatenate([ball_draw(rng, bp), ball_draw(rng, bv)])
-        u = -k_a @ (e + delta)
-        assert np.linalg.norm(u) <= u_max
-        e = a_d @ e + b_d @ (m @ u + ball_draw(rng, truth.bound("disturbance_max_kmps2")))
-        assert np.linalg.norm(e[:3]) <= shrinking[i + 1, 0]
-        assert np.linalg.norm(e[3:]) <= shrinking[i + 1, 1]
+    hold_target(rng, e, (m, a_d, b_d, k_a), rng_km + ball_p, shrinking)
 
 
 @settings(max_examples=20, deadline=None)

@@ -59,8 +59,8 @@ def run(args: argparse.Namespace) -> int:
                     for k in [f"cn{b}" for b in blocks] + [f"d{b}" for b in blocks] + ["cpe", "cve"]}
                 row["c0"] = {b: tc[f"c0{b}"] for b in blocks}
                 row["g"] = {b: tc[f"g{b}"] for b in blocks}  # the DC gains of a lasting navigation offset
-                row["envelope"] = {b: {"peak": max(tc[f"env{b}"]), "at": tc[f"env{b}"].index(max(tc[f"env{b}"])),
-                                       "m1": tc[f"env{b}"][1]} for b in blocks}
+                envelopes = {b: tc[f"env{b}"] for b in blocks}
+                row["envelope"] = {b: {"peak": max(e), "at": e.index(max(e)), "m1": e[1]} for b, e in envelopes.items()}
             except UnstableLoopError as exc:
                 row["unstable"] = str(exc)
             bands.append(row)
